@@ -1,0 +1,31 @@
+"""jaxcontact: differentiable adhesive contact of viscoelastic bodies in JAX.
+
+The forward model of Popov et al., "Energetic criterion for adhesion in viscoelastic
+contacts with non-entropic surface interaction": the Method of Dimensionality Reduction
+(MDR) with the energetic (glass-modulus) detachment criterion.
+
+Conventions (everywhere): SI units; indentation depth `d` positive into the sample; normal
+force positive when compressive, negative when adhesive; `work_of_adhesion` is the work of
+separation per unit area Δγ [J/m²]. Moduli are shear moduli G [Pa] of an incompressible
+half-space, so the MDR foundation stiffness is 4G per unit length (E* = 4G).
+
+float64 is switched on at import (``jax_enable_x64``): results are float64 unless every
+input is float32, in which case the computation runs in float32 (see the README for the
+measured float32 error).
+"""
+
+import jax as _jax
+
+_jax.config.update("jax_enable_x64", True)
+
+from ._version import __version__ as __version__  # noqa: E402
+
+# --- profiles --------------------------------------------------------------------------
+from ._profiles import AbstractProfile as AbstractProfile  # noqa: E402
+from ._profiles import Cone as Cone  # noqa: E402
+from ._profiles import FlatPunch as FlatPunch  # noqa: E402
+from ._profiles import Parabola as Parabola  # noqa: E402
+from ._profiles import PowerLaw as PowerLaw  # noqa: E402
+from ._profiles import power_law_factor as power_law_factor  # noqa: E402
+
+# --- further exports (one line each, added by module) ------------------------------------

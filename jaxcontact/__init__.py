@@ -14,6 +14,7 @@ input is float32, in which case the computation runs in float32 (see the README 
 measured float32 error).
 """
 
+# ruff: noqa: I001
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
@@ -29,3 +30,24 @@ from ._profiles import PowerLaw as PowerLaw  # noqa: E402
 from ._profiles import power_law_factor as power_law_factor  # noqa: E402
 
 # --- further exports (one line each, added by module) ------------------------------------
+from ._criteria import BEM_CHI as BEM_CHI  # noqa: E402
+from ._criteria import bem_critical_stress as bem_critical_stress  # noqa: E402
+from ._criteria import bem_release_energy as bem_release_energy  # noqa: E402
+from ._criteria import critical_elongation as critical_elongation  # noqa: E402
+from ._criteria import critical_line_load as critical_line_load  # noqa: E402
+from ._criteria import hess_elongation as hess_elongation  # noqa: E402
+from ._tabulated import Tabulated as Tabulated  # noqa: E402
+from ._rheology import AbstractRheology as AbstractRheology  # noqa: E402
+from ._rheology import CreepChain as CreepChain  # noqa: E402
+from ._rheology import Elastic as Elastic  # noqa: E402
+from ._rheology import PronySeries as PronySeries  # noqa: E402
+from ._rheology import StandardModel as StandardModel  # noqa: E402
+from ._elastic import PullOff as PullOff  # noqa: E402
+from ._elastic import contact_pressure as contact_pressure  # noqa: E402
+from ._elastic import jkr_contact_radius as jkr_contact_radius  # noqa: E402
+from ._elastic import jkr_displacement as jkr_displacement  # noqa: E402
+from ._elastic import jkr_force as jkr_force  # noqa: E402
+from ._elastic import profile_radius as profile_radius  # noqa: E402
+from ._elastic import pull_off as pull_off  # noqa: E402
+from ._solution import RESULTS as RESULTS  # noqa: E402
+from ._solution import ContactSolution as ContactSolution  # noqa: E402

@@ -1,0 +1,20 @@
+"""fitting: inverse identification of G0, G1, η1, Δγ from measured force–displacement curves.
+
+Data in (:mod:`fitting._data`): :class:`Curve` and the loaders :func:`load_curve`,
+:func:`load_csv`, :func:`load_afm`; all SI units (s, m, N).
+"""
+
+from ._data import DEFAULT_LIMITS as DEFAULT_LIMITS
+from ._data import SEGMENT_KINDS as SEGMENT_KINDS
+from ._data import ContactPoint as ContactPoint
+from ._data import Curve as Curve
+from ._data import Limits as Limits
+from ._data import infer_segments as infer_segments
+from ._data import load_afm as load_afm
+from ._data import load_csv as load_csv
+from ._data import load_curve as load_curve
+from ._data import parse_units as parse_units
+from ._data import preprocess as preprocess
+from ._data import resample as resample
+from ._data import select_segments as select_segments
+from ._data import unit_factor as unit_factor

@@ -1,0 +1,82 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+from scipy.integrate import quad
+from scipy.special import gamma
+
+import jaxcontact as jc
+
+
+def mdr_quad(fprime, x):
+    val, _ = quad(lambda r: fprime(r) / np.sqrt(x + r), 0.0, x, weight="alg", wvar=(0.0, -0.5))
+    return x * val
+
+
+@pytest.mark.parametrize("n", [0.7, 1.0, 1.5, 2.0, 3.0])
+def test_power_law_transform_matches_quadrature(n):
+    c = 2.3e3
+    prof = jc.PowerLaw(c=c, n=n)
+    for x in [1e-6, 3e-6]:
+        ref = mdr_quad(lambda r: c * n * r ** (n - 1), x)
+        np.testing.assert_allclose(prof.g(x), ref, rtol=1e-9)
+    kappa = np.sqrt(np.pi) * gamma(n / 2 + 1) / gamma(n / 2 + 0.5)
+    np.testing.assert_allclose(jc.power_law_factor(n), kappa, rtol=1e-13)
+
+
+def test_parabola_and_cone_closed_forms():
+    R = 1e-4
+    p = jc.Parabola(R=R)
+    x = np.linspace(0, 1e-5, 7)
+    np.testing.assert_allclose(p.g(x), x**2 / R, rtol=1e-14)
+    np.testing.assert_allclose(p.g(x), jc.PowerLaw(c=1 / (2 * R), n=2.0).g(x), rtol=1e-12)
+    np.testing.assert_allclose(p.integral_g(2e-5), (2e-5) ** 3 / (3 * R), rtol=1e-14)
+    alpha = 0.6
+    cone = jc.Cone(half_angle=alpha)
+    # f = r cot(alpha): g = (pi/2) x cot(alpha), check against quadrature
+    ref = mdr_quad(lambda r: 1 / np.tan(alpha), 2e-6)
+    np.testing.assert_allclose(cone.g(2e-6), ref, rtol=1e-10)
+    np.testing.assert_allclose(cone.shape(1e-6), 1e-6 / np.tan(alpha), rtol=1e-14)
+
+
+@pytest.mark.parametrize(
+    "prof",
+    [jc.Parabola(R=1e-4), jc.Cone(half_angle=0.4), jc.PowerLaw(c=1e4, n=2.5)],
+    ids=["parabola", "cone", "powerlaw"],
+)
+def test_derivatives_consistent(prof):
+    x = 2e-6
+    np.testing.assert_allclose(prof.dg(x), jax.grad(prof.g)(x), rtol=1e-10)
+    ig, _ = quad(lambda s: float(prof.g(s)), 0, x)
+    np.testing.assert_allclose(prof.integral_g(x), ig, rtol=1e-10)
+    check_grads(prof.g, (x,), order=2, modes=["fwd", "rev"], eps=1e-9)
+
+
+def test_flat_punch():
+    fp = jc.FlatPunch(radius=1e-5)
+    assert float(fp.g(0.5e-5)) == 0.0
+    assert np.isinf(fp.g(2e-5))
+    assert float(fp.max_radius) == 1e-5
+    assert float(fp.integral_g(1e-5)) == 0.0
+
+
+def test_vmap_over_profile_parameters():
+    Rs = jnp.array([1e-4, 2e-4])
+    out = jax.vmap(lambda R: jc.Parabola(R=R).g(1e-5))(Rs)
+    np.testing.assert_allclose(out, 1e-10 / Rs)
+
+
+@pytest.mark.parametrize(
+    "ctor, name",
+    [
+        (lambda: jc.Parabola(R=-1e-4), "R"),
+        (lambda: jc.Parabola(R=float("nan")), "R"),
+        (lambda: jc.Cone(half_angle=2.0), "half_angle"),
+        (lambda: jc.PowerLaw(c=1.0, n=0.0), "n"),
+        (lambda: jc.FlatPunch(radius=0.0), "radius"),
+    ],
+)
+def test_bad_profile_parameters(ctor, name):
+    with pytest.raises(ValueError, match=f"`{name}`"):
+        ctor()

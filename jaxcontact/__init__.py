@@ -49,5 +49,9 @@ from ._elastic import jkr_displacement as jkr_displacement  # noqa: E402
 from ._elastic import jkr_force as jkr_force  # noqa: E402
 from ._elastic import profile_radius as profile_radius  # noqa: E402
 from ._elastic import pull_off as pull_off  # noqa: E402
+from ._pulloff import AbstractMethod as AbstractMethod  # noqa: E402
+from ._pulloff import DiffraxODE as DiffraxODE  # noqa: E402
+from ._pulloff import ExactUpdate as ExactUpdate  # noqa: E402
+from ._pulloff import retract as retract  # noqa: E402
 from ._solution import RESULTS as RESULTS  # noqa: E402
 from ._solution import ContactSolution as ContactSolution  # noqa: E402

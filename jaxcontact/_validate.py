@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-__all__ = ["check_positive", "check_finite", "is_concrete"]
+__all__ = ["check_positive", "check_finite", "check_times", "is_concrete"]
 
 
 def is_concrete(value) -> bool:
@@ -55,3 +55,22 @@ def check_positive(
         raise ValueError(
             f"`{name}` must lie in {lo}, {hi} [{unit}]; got {bad}."
         )
+
+
+def check_times(ts, *, require_nonnegative: bool = False) -> None:
+    """Validate sample times `ts` [s]: 1-D, at least one, finite, non-decreasing (>= 0)."""
+    shape = np.shape(ts)
+    if len(shape) != 1 or shape[0] < 1:
+        raise ValueError(f"`ts` [s] must be a 1-D array with at least one time; got shape {shape}.")
+    if not is_concrete(ts):
+        return
+    arr = np.asarray(ts, dtype=float)
+    check_finite("ts", arr, "s")
+    bad = np.flatnonzero(np.diff(arr) < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(
+            f"`ts` [s] must be non-decreasing; ts[{i + 1}] = {arr[i + 1]:g} < ts[{i}] = {arr[i]:g}."
+        )
+    if require_nonnegative and arr[0] < 0:
+        raise ValueError(f"`ts` [s] must be >= 0 (t = 0 is the start of the lift); got {arr[0]:g}.")

@@ -24,7 +24,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._profiles import AbstractProfile, Cone, FlatPunch, Parabola, PowerLaw, power_law_factor
 from ._root import bracketed_root
-from ._validate import check_positive
+from ._validate import as_float, check_positive
 
 __all__ = [
     "jkr_displacement",
@@ -64,7 +64,7 @@ def _power_law_params(profile):
 
 def _upper_radius(profile):
     """A finite upper end for radius brackets (the profile's own, or 1 m)."""
-    amax = jnp.asarray(profile.max_radius, dtype=float)
+    amax = as_float(profile.max_radius)
     return jnp.where(jnp.isfinite(amax), amax, 1.0)
 
 
@@ -97,7 +97,7 @@ def profile_radius(profile: AbstractProfile, depth: Float[ArrayLike, "..."]) -> 
 
     For the flat punch this is the punch radius (any depth > 0).
     """
-    depth = jnp.asarray(depth, dtype=float)
+    depth = as_float(depth)
     if isinstance(profile, FlatPunch):
         return jnp.asarray(profile.radius) + jnp.zeros_like(depth)
     pl = _power_law_params(profile)
@@ -155,7 +155,7 @@ def _stable_radius(profile, m, c, lo, hi):
     `lo` is the fold radius (or larger); `hi` a radius with $h(hi) \ge m$.
     """
     if isinstance(profile, Parabola):
-        return _parabola_stable_radius(m, c, jnp.asarray(profile.R, dtype=float))
+        return _parabola_stable_radius(m, c, as_float(profile.R))
     if isinstance(profile, Cone):
         s = 0.5 * jnp.pi / jnp.tan(profile.half_angle)
         # s sigma^2 - c sigma - m = 0, sigma = sqrt(a)
@@ -193,7 +193,7 @@ def jkr_displacement(
     **Returns:** $d$ [m], positive into the sample, with the shape of `a`.
     """
     _check(effective_modulus, work_of_adhesion)
-    a = jnp.asarray(a, dtype=float)
+    a = as_float(a)
     c = _hess_coefficient(effective_modulus, work_of_adhesion)
     return _front_displacement(profile, a, c)
 
@@ -213,7 +213,7 @@ def jkr_force(
     d = jkr_displacement(
         profile, a, effective_modulus=effective_modulus, work_of_adhesion=work_of_adhesion
     )
-    a = jnp.asarray(a, dtype=float)
+    a = as_float(a)
     return 2 * effective_modulus * (a * d - profile.integral_g(a))
 
 
@@ -233,7 +233,7 @@ def jkr_contact_radius(
     while attached.
     """
     _check(effective_modulus, work_of_adhesion, allow_zero_adhesion=False)
-    d = jnp.asarray(displacement, dtype=float)
+    d = as_float(displacement)
     c = _hess_coefficient(effective_modulus, work_of_adhesion)
     a_fold = _critical_radius(profile, c, 0.5)
     d_fold = _front_displacement(profile, a_fold, c)
@@ -338,8 +338,8 @@ def contact_pressure(
     - `displacement`: indentation $d$ [m] for a contact of radius `a` off the front (e.g. a
       pinned contact); overrides `work_of_adhesion`.
     """
-    r = jnp.abs(jnp.asarray(r, dtype=float))
-    a = jnp.asarray(a, dtype=float)
+    r = jnp.abs(as_float(r))
+    a = as_float(a)
     if displacement is None:
         displacement = jkr_displacement(
             profile, a, effective_modulus=effective_modulus, work_of_adhesion=work_of_adhesion

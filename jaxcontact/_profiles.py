@@ -27,7 +27,7 @@ import jax.numpy as jnp
 from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float
 
-from ._validate import check_positive
+from ._validate import as_float, check_positive
 
 __all__ = [
     "AbstractProfile",
@@ -165,7 +165,7 @@ class Cone(AbstractProfile):
         return 0.5 * jnp.pi * jnp.abs(jnp.asarray(x)) * self._slope()
 
     def dg(self, x):
-        return jnp.zeros_like(jnp.asarray(x, dtype=float)) + 0.5 * jnp.pi * self._slope()
+        return jnp.zeros_like(as_float(x)) + 0.5 * jnp.pi * self._slope()
 
     def integral_g(self, a):
         return 0.25 * jnp.pi * self._slope() * jnp.asarray(a) ** 2
@@ -189,17 +189,17 @@ class FlatPunch(AbstractProfile):
         check_positive("radius", self.radius, "m")
 
     def shape(self, r):
-        r = jnp.abs(jnp.asarray(r, dtype=float))
+        r = jnp.abs(as_float(r))
         return jnp.where(r <= self.radius, 0.0, jnp.inf)
 
     def g(self, x):
         return self.shape(x)
 
     def dg(self, x):
-        return jnp.zeros_like(jnp.asarray(x, dtype=float))
+        return jnp.zeros_like(as_float(x))
 
     def integral_g(self, a):
-        return jnp.zeros_like(jnp.asarray(a, dtype=float))
+        return jnp.zeros_like(as_float(a))
 
     @property
     def max_radius(self):

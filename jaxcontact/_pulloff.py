@@ -59,7 +59,7 @@ from ._elastic import (
 from ._profiles import AbstractProfile, Cone, FlatPunch, Parabola
 from ._root import bracketed_root
 from ._solution import RESULTS, ContactSolution, is_error
-from ._validate import check_finite, check_positive, check_times, is_concrete
+from ._validate import as_float, check_finite, check_positive, check_times, is_concrete
 
 __all__ = ["retract", "ExactUpdate", "DiffraxODE", "AbstractMethod"]
 
@@ -99,9 +99,9 @@ class DiffraxODE(AbstractMethod):
 
 def _prony_arrays(rheology):
     prony = rheology.to_prony()
-    G_inf = jnp.asarray(prony.G_inf, dtype=float)
-    G = jnp.atleast_1d(jnp.asarray(prony.G, dtype=float))
-    tau = jnp.atleast_1d(jnp.asarray(prony.tau, dtype=float))
+    G_inf = as_float(prony.G_inf)
+    G = jnp.atleast_1d(as_float(prony.G))
+    tau = jnp.atleast_1d(as_float(prony.tau))
     return G_inf, G, tau
 
 
@@ -224,9 +224,9 @@ def retract(
         raise ValueError("Give exactly one of `velocity` [m/s] and `displacement` [m].")
     check_positive("work_of_adhesion", work_of_adhesion, "J/m^2")
     check_times(ts, require_nonnegative=velocity is not None)
-    ts = jnp.asarray(ts, dtype=float)
+    ts = as_float(ts)
     if displacement is not None:
-        displacement = jnp.asarray(displacement, dtype=float)
+        displacement = as_float(displacement)
         if displacement.shape != ts.shape:
             raise ValueError(
                 f"`displacement` [m] must have the shape of `ts` {ts.shape}; "
@@ -255,12 +255,12 @@ def retract(
     return _retract(
         rheology,
         profile,
-        jnp.asarray(work_of_adhesion, dtype=float),
-        jnp.asarray(depth, dtype=float),
+        as_float(work_of_adhesion),
+        as_float(depth),
         ts,
-        None if velocity is None else jnp.asarray(velocity, dtype=float),
+        None if velocity is None else as_float(velocity),
         displacement,
-        None if contact_radius is None else jnp.asarray(contact_radius, dtype=float),
+        None if contact_radius is None else as_float(contact_radius),
         method,
         throw,
     )

@@ -323,3 +323,20 @@ def test_bad_inputs(kw, name):
         sm(G0_=-1.0)
     with pytest.raises(ValueError, match="exactly one"):
         jc.retract(sm(), jc.Parabola(R=R), work_of_adhesion=DG, depth=D0, ts=TS)
+
+
+def test_float32_path_against_float64():
+    """float32 inputs keep float32; error measured against float64 (documented in README)."""
+    f32 = jnp.float32
+    sol32 = jc.retract(
+        jc.StandardModel(G0=f32(G0), G1=f32(G1), eta1=f32(ETA1)), jc.Parabola(R=f32(R)),
+        work_of_adhesion=f32(DG), depth=f32(D0), velocity=f32(V), ts=TS.astype(f32),
+    )
+    sol64 = run()
+    assert sol32.force.dtype == jnp.float32
+    scale = float(jnp.max(jnp.abs(sol64.force)))
+    err = np.abs(np.asarray(sol32.force, dtype=float) - np.asarray(sol64.force))
+    # away from the jump-off sample (which may flip by one sample) the error is float32 round-off
+    keep = np.abs(np.asarray(TS) - float(sol64.jumpoff_time)) > 1e-4
+    assert err[keep].max() < 1e-5 * scale
+    np.testing.assert_allclose(float(sol32.jumpoff_time), float(sol64.jumpoff_time), rtol=1e-4)

@@ -303,7 +303,12 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     h_crit = _front_displacement(profile, a_crit, c)
     can_recede = a0 > a_fold
 
-    m = lax.cummin(d_eff, axis=0)
+    if velocity is not None:
+        # constant-speed lift from rest: d_eff' = -v G(t)/G_inf < 0, so d_eff is its own
+        # running minimum (and the cumulative minimum, slow on CPU, is not needed)
+        m = d_eff
+    else:
+        m = lax.cummin(d_eff, axis=0)
     attached = m >= h_crit
     receding = attached & (m < h_pin) & can_recede
     # safe input for lanes not on the receding front: the root at max(a0, 2 a_fold)

@@ -42,6 +42,11 @@ from ._rheology import CreepChain as CreepChain  # noqa: E402
 from ._rheology import Elastic as Elastic  # noqa: E402
 from ._rheology import PronySeries as PronySeries  # noqa: E402
 from ._rheology import StandardModel as StandardModel  # noqa: E402
+from ._foundation import simulate as simulate  # noqa: E402
+from ._foundation import FoundationGrid as FoundationGrid  # noqa: E402
+from ._foundation import AbstractLoading as AbstractLoading  # noqa: E402
+from ._foundation import DisplacementControl as DisplacementControl  # noqa: E402
+from ._foundation import CompliantLoading as CompliantLoading  # noqa: E402
 from ._elastic import PullOff as PullOff  # noqa: E402
 from ._elastic import contact_pressure as contact_pressure  # noqa: E402
 from ._elastic import jkr_contact_radius as jkr_contact_radius  # noqa: E402

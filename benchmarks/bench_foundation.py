@@ -1,0 +1,189 @@
+"""Benchmark of `jaxcontact.simulate` (the MDR foundation) and its discretisation error.
+
+Run: `/tmp/venv/bin/python benchmarks/bench_foundation.py [--batch 1000] [--repeats 7]`
+
+Claims measured here:
+
+1. Time per curve for an approach-hold-lift history of 5,000 samples at the default grid
+   (`FoundationGrid()`, 64 cells), after compilation, and for a batch of curves under `vmap`
+   (1,000 by default); medians over repeats and the ratio batch/single per curve.
+2. The discretisation error at that grid, against a fine reference grid: the largest force
+   error over the samples where both grids are in contact, the jump-off time and force and
+   the largest tensile force; a table of the error against the number of cells with the
+   observed order (second order expected).
+3. Heavier correctness checks that the test file leaves out: the gradient through the
+   compliant loading system (Newton's method, implicit differentiation) against finite
+   differences, and reverse against forward mode for the rigid loading.
+
+Everything runs on the CPU in float64.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxcontact as jc
+
+R = 1e-3  # m
+D0 = 1e-5  # m
+DGAMMA = 0.01  # J/m^2
+G0, G1, ETA1 = 1e5, 2e4, 2e2  # Pa, Pa, Pa s -> tau = eta1 / (G0 + G1) = 1/600 s
+TAU = ETA1 / (G0 + G1)
+PROFILE = jc.Parabola(R)
+
+
+def history(n: int):
+    """Approach in tau, hold tau, lift at 0.53 d0/tau to -0.6 d0 (through jump-off)."""
+    knots_t = np.array([0.0, TAU, 2 * TAU, 5 * TAU])
+    knots_d = np.array([0.0, D0, D0, -0.6 * D0])
+    ts = np.linspace(0.0, knots_t[-1], n)
+    return jnp.asarray(ts), jnp.asarray(np.interp(ts, knots_t, knots_d))
+
+
+def timed(fn, *args, repeats: int):
+    out = fn(*args)
+    jax.block_until_ready(out)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), times, out
+
+
+def bench_speed(n_samples: int, batch: int, repeats: int):
+    ts, d = history(n_samples)
+
+    def one(g0, g1, eta1, dgamma):
+        sol = jc.simulate(jc.StandardModel(g0, g1, eta1), PROFILE, dgamma, ts, d, throw=False)
+        return sol.force, sol.jumpoff_time, sol.max_tensile_force
+
+    single = jax.jit(one)
+    t0 = time.perf_counter()
+    jax.block_until_ready(single(G0, G1, ETA1, DGAMMA))
+    compile_single = time.perf_counter() - t0
+    med_single, _, _ = timed(single, G0, G1, ETA1, DGAMMA, repeats=repeats)
+
+    rng = np.random.default_rng(0)
+    g0 = jnp.asarray(G0 * rng.uniform(0.8, 1.2, batch))
+    g1 = jnp.asarray(G1 * rng.uniform(0.8, 1.2, batch))
+    eta = jnp.asarray(ETA1 * rng.uniform(0.8, 1.2, batch))
+    dg = jnp.asarray(DGAMMA * rng.uniform(0.8, 1.2, batch))
+    batched = jax.jit(jax.vmap(one))
+    t0 = time.perf_counter()
+    jax.block_until_ready(batched(g0, g1, eta, dg))
+    first_batch = time.perf_counter() - t0
+    med_batch, _, _ = timed(batched, g0, g1, eta, dg, repeats=max(1, repeats // 3))
+
+    print(f"== speed: approach-hold-lift, {n_samples} samples, default grid "
+          f"({jc.FoundationGrid().cells} cells), StandardModel, Parabola, CPU float64")
+    print(f"  single curve: compile+first run {compile_single:.2f} s, "
+          f"median run {med_single * 1e3:.1f} ms")
+    print(f"  batch of {batch} under vmap: first call {first_batch:.2f} s, "
+          f"median {med_batch:.2f} s = {med_batch / batch * 1e3:.2f} ms per curve")
+    print(f"  ratio (per-curve batch / single): {med_batch / batch / med_single:.2f}")
+    return med_single, med_batch
+
+
+def bench_error(n_samples: int, cells_list, ref_cells: int):
+    ts, d = history(n_samples)
+    rheo = jc.StandardModel(G0, G1, ETA1)
+
+    def run(cells):
+        f = jax.jit(lambda dd: jc.simulate(rheo, PROFILE, DGAMMA, ts, dd, grid=cells))
+        return f(d)
+
+    ref = run(ref_cells)
+    F_ref = np.asarray(ref.force)
+    scale = np.max(np.abs(F_ref))
+    hold_end = np.asarray(ts) <= 2 * TAU
+    print(f"\n== discretisation error, {n_samples} samples, reference grid {ref_cells} cells")
+    print("  errors relative to max|F|; 'max|dF|' over samples where both grids are in "
+          "contact;\n  'pre-lift' over approach and hold; jump-off time in units of tau")
+    print(f"  {'cells':>6} {'max|dF|':>10} {'pre-lift':>10} {'order':>6} {'t_jump':>10} "
+          f"{'order':>6} {'F_jump':>10} {'F_max_tens':>10}")
+    prev = None
+    rows = {}
+    for cells in cells_list:
+        sol = run(cells)
+        F = np.asarray(sol.force)
+        both = (np.asarray(sol.contact_radius) > 0) == (np.asarray(ref.contact_radius) > 0)
+        e_all = np.max(np.abs(F - F_ref)[both]) / scale
+        e_pre = np.max(np.abs(F - F_ref)[hold_end]) / scale
+        e_t = abs(float(sol.jumpoff_time - ref.jumpoff_time)) / TAU
+        e_fj = abs(float(sol.jumpoff_force - ref.jumpoff_force)) / scale
+        e_ft = abs(float(sol.max_tensile_force - ref.max_tensile_force)) / scale
+        o_pre = o_t = float("nan")
+        if prev is not None:
+            o_pre = np.log2(prev[0] / e_pre) / np.log2(cells / prev[2])
+            o_t = np.log2(prev[1] / e_t) / np.log2(cells / prev[2])
+        prev = (e_pre, e_t, cells)
+        rows[cells] = (e_all, e_pre, e_t, e_fj, e_ft)
+        print(f"  {cells:6d} {e_all:10.2e} {e_pre:10.2e} {o_pre:6.2f} {e_t:10.2e} {o_t:6.2f} "
+              f"{e_fj:10.2e} {e_ft:10.2e}")
+    default = jc.FoundationGrid().cells
+    est = jax.jit(
+        lambda dd: jc.simulate(rheo, PROFILE, DGAMMA, ts, dd, estimate_error=True).stats
+    )(d)
+    print(f"  default grid ({default} cells): Richardson estimate from simulate(..., "
+          f"estimate_error=True): {float(est['relative_discretisation_error']):.2e} "
+          f"(force), {float(est['jumpoff_time_error']) / TAU:.2e} tau (jump-off time)")
+    return rows
+
+
+def check_gradients():
+    print("\n== gradient checks (finite differences, central, relative step 1e-6)")
+    ts, z = history(600)
+
+    # compliant loading: through Newton's method on the loading spring
+    loading = jc.CompliantLoading(50.0)
+
+    def total(p, loading=loading):
+        sol = jc.simulate(jc.StandardModel(p[0], p[1], p[2]), PROFILE, p[3], ts, z, grid=16,
+                          loading=loading)
+        before = ts < 3 * TAU
+        return jnp.sum(jnp.where(before, sol.force, 0.0)) + sol.max_tensile_force * 100
+
+    p = jnp.array([G0, G1, ETA1, DGAMMA])
+    f = jax.jit(total)
+    g = np.asarray(jax.jit(jax.grad(total))(p))
+    for k, name in enumerate(("G0", "G1", "eta1", "dgamma")):
+        h = 1e-6 * float(p[k])
+        fd = float((f(p.at[k].add(h)) - f(p.at[k].add(-h))) / (2 * h))
+        print(f"  compliant k=50 N/m, d/d{name:6s}: grad {g[k]: .6e}  fd {fd: .6e}  "
+              f"rel.diff {abs(g[k] - fd) / abs(fd):.1e}")
+
+    # rigid loading: reverse against forward mode on several outputs
+    def outputs(p):
+        sol = jc.simulate(jc.StandardModel(p[0], p[1], p[2]), PROFILE, p[3], ts, z, grid=16)
+        return jnp.stack([sol.jumpoff_time, sol.jumpoff_force, sol.max_tensile_force,
+                          sol.jumpoff_radius])
+
+    jf = np.asarray(jax.jit(jax.jacfwd(outputs))(p))
+    jr = np.asarray(jax.jit(jax.jacrev(outputs))(p))
+    print(f"  rigid loading: max |jacrev - jacfwd| / |jacfwd| = "
+          f"{np.max(np.abs(jr - jf) / np.abs(jf)):.1e}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=5000)
+    parser.add_argument("--batch", type=int, default=1000)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--skip-checks", action="store_true")
+    args = parser.parse_args()
+    print(f"jax {jax.__version__}, devices {jax.devices()}")
+    bench_speed(args.samples, args.batch, args.repeats)
+    bench_error(args.samples, (8, 16, 32, 64, 128, 256), ref_cells=1024)
+    if not args.skip_checks:
+        check_gradients()
+
+
+if __name__ == "__main__":
+    main()

@@ -2,7 +2,6 @@
 
 import argparse
 import json
-import os
 import pathlib
 import warnings
 
@@ -200,9 +199,9 @@ def test_cli_missing_file(tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.skipif(not os.environ.get("JAXCONTACT_SLOW"),
-                    reason="slow (~90 s cold): set JAXCONTACT_SLOW=1")
 def test_oocyte_history_fit():
+    """The real oocyte curve (approach, 30 s hold, retract) with the full-history model
+    (~1.5-3 min cold on 2 cores; R = 40 um is an assumption, the file has no probe radius)."""
     path = pathlib.Path(__file__).parent / "data" / "oocyte-stress-relaxation-cell1-0008.jpk-force"
     pytest.importorskip("afmformats")
     curve = fitting.load_afm(path)[0]

@@ -13,7 +13,9 @@ Claims measured here:
    observed order (second order expected).
 3. Heavier correctness checks that the test file leaves out: the gradient through the
    compliant loading system (Newton's method, implicit differentiation) against finite
-   differences, and reverse against forward mode for the rigid loading.
+   differences; reverse against forward mode for the rigid loading; the long hold then lift
+   against `retract` for a cone, a power law and a tabulated profile; the soft-spring limit
+   of the compliant loading (force control).
 
 Everything runs on the CPU in float64.
 """
@@ -171,6 +173,57 @@ def check_gradients():
           f"{np.max(np.abs(jr - jf) / np.abs(jf)):.1e}")
 
 
+def check_profiles_and_limits():
+    """Long hold then lift against `retract` for other profiles; soft compliant spring."""
+    from jaxcontact._pulloff import retract
+
+    print("\n== long hold (60 tau) then lift at d0/tau, default grid, against retract")
+    rheo = jc.StandardModel(G0, G1, ETA1)
+    r = np.linspace(0, 3e-4, 200)
+    profiles = {
+        "parabola": PROFILE,
+        "cone": jc.Cone(1.2),
+        "power law n=3": jc.PowerLaw(1e6, 3.0),
+        "tabulated parabola": jc.Tabulated(r, r**2 / (2 * R)),
+    }
+    for name, prof in profiles.items():
+        d0 = float(prof.g(1e-4))  # a0 = 1e-4 m
+        v = d0 / TAU
+        ts = np.concatenate([
+            np.linspace(0, 0.5 * TAU, 20, endpoint=False),
+            0.5 * TAU + np.linspace(0, 60 * TAU, 40, endpoint=False),
+            60.5 * TAU + np.linspace(0, 6 * TAU, 241),
+        ])
+        d = np.concatenate([d0 * np.linspace(0, 1, 20, endpoint=False), np.full(40, d0),
+                            d0 - v * (ts[60:] - ts[60])])
+        sol = jc.simulate(rheo, prof, DGAMMA, jnp.asarray(ts), jnp.asarray(d))
+        ref = retract(rheo, prof, work_of_adhesion=DGAMMA, depth=d0, ts=ts[60:] - ts[60],
+                      displacement=d[60:])
+        F, Fr = np.asarray(sol.force)[60:], np.asarray(ref.force)
+        errs = [
+            np.max(np.abs(F - Fr)) / np.max(np.abs(Fr)),
+            abs(float(sol.jumpoff_time) - ts[60] - float(ref.jumpoff_time)) / TAU,
+            abs(float(sol.jumpoff_force / ref.jumpoff_force) - 1),
+            abs(float(sol.max_tensile_force / ref.max_tensile_force) - 1),
+        ]
+        print(f"  {name:20s} force {errs[0]:.1e}  jump-off time {errs[1]:.1e} tau  "
+              f"jump-off force {errs[2]:.1e}  max tensile {errs[3]:.1e}")
+
+    print("\n== compliant loading, elastic JKR: jump-off force against force control")
+    G = 1e5
+    fc = -1.5 * np.pi * DGAMMA * R
+    ts = np.linspace(0, 2, 3001)
+    for k in (10.0, 1.0, 0.1):
+        # preload to d0 (contact radius 1e-4 m > the force-control radius), then lift the
+        # drive far enough for the spring to pull beyond the pull-off force
+        preload = 4 / 3 * 4 * G * np.sqrt(R) * D0**1.5
+        z = np.interp(ts, [0, 1, 2], [0, D0 + preload / k, -2 * D0 + 1.5 * fc / k])
+        sol = jc.simulate(jc.Elastic(G), PROFILE, DGAMMA, jnp.asarray(ts), jnp.asarray(z),
+                          loading=jc.CompliantLoading(k))
+        print(f"  k = {k:5.1f} N/m: jump-off force / (-3/2 pi dgamma R) = "
+              f"{float(sol.jumpoff_force) / fc:.5f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=5000)
@@ -183,6 +236,7 @@ def main():
     bench_error(args.samples, (8, 16, 32, 64, 128, 256), ref_cells=1024)
     if not args.skip_checks:
         check_gradients()
+        check_profiles_and_limits()
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ shapes (see `_sim`).
 """
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,26 +22,38 @@ from jaxcontact._pulloff import DiffraxODE, retract
 
 R = 1e-3  # m
 D0 = 1e-5  # m, so a0 = sqrt(R d0) = 1e-4 m
-DGAMMA = jnp.asarray(0.01)  # J/m^2
+def _f64(x):
+    # not weakly typed, so that every call shares one jit signature
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+DGAMMA = _f64(0.01)  # J/m^2
 M = 301  # samples of most histories (one compiled function serves several tests)
 
 
 def _solid(G0=1e5, G1=2e4, eta1=2e2):
-    return jc.StandardModel(jnp.asarray(G0), jnp.asarray(G1), jnp.asarray(eta1))
+    return jc.StandardModel(_f64(G0), _f64(G1), _f64(eta1))
 
 
 def _elastic(G=1e5):
-    return jc.Elastic(jnp.asarray(G))
+    return jc.Elastic(_f64(G))
 
 
 SOLID = _solid()  # tau = 1/600 s, G_inf = 1e5/6 Pa
 TAU = float(SOLID.tau)
-PARABOLA = jc.Parabola(jnp.asarray(R))
-CHAIN = jc.CreepChain(jnp.asarray(1e5), jnp.asarray([3e4, 8e4]), jnp.asarray([30.0, 2.0]))
+PARABOLA = jc.Parabola(_f64(R))
+CHAIN = jc.CreepChain(_f64(1e5), _f64([3e4, 8e4]), _f64([30.0, 2.0]))
 
-# Every numeric leaf is a JAX array, so the filter_jit cache is shared by all calls with the
-# same static configuration (rheology type, profile type, grid, loading, shapes).
-_sim = eqx.filter_jit(jc.simulate)
+# Compilation dominates the run time of these tests: compile without the XLA backend
+# optimisations (about a third faster to compile, slower to run, same results), and keep
+# every numeric leaf a JAX array so that one compiled function serves all calls with the same
+# static configuration (rheology and profile types, grid, loading type, method, shapes).
+_FAST_COMPILE = {"xla_backend_optimization_level": 0}
+_sim = jax.jit(
+    jc.simulate,
+    static_argnames=("grid", "method", "throw", "estimate_error"),
+    compiler_options=_FAST_COMPILE,
+)
 
 
 def _history(ts_knots, d_knots, n):
@@ -56,13 +67,17 @@ def _jkr(a, E, dgamma=float(DGAMMA)):
     return d, F
 
 
-def test_psi_series_matches_direct():
+def test_psi_absolute_accuracy():
+    # psi enters as an increment du * psi added to a dashpot displacement: its absolute
+    # error must be of the order of the machine epsilon, and psi(0) = 0 exactly
     from decimal import Decimal, getcontext
 
     getcontext().prec = 50
-    s = [1e-6, 5e-4, 9.99e-4, 1.001e-3, 0.1, 3.0, 50.0]
+    s = [1e-12, 1e-6, 5e-4, 0.1, 3.0, 50.0]
     exact = [float(1 - (1 - (-Decimal(x)).exp()) / Decimal(x)) for x in s]
-    np.testing.assert_allclose(np.asarray(_psi(jnp.asarray(s))), exact, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(_psi(jnp.asarray(s))), exact, rtol=0, atol=4e-16)
+    assert float(_psi(jnp.asarray(0.0))) == 0.0
+    assert np.isfinite(float(jax.grad(_psi)(jnp.asarray(0.0))))
 
 
 # --------------------------------------------------------------------------------------
@@ -70,10 +85,11 @@ def test_psi_series_matches_direct():
 # --------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("profile", [PARABOLA, jc.Cone(jnp.asarray(1.2))], ids=["parabola", "cone"])
-def test_long_hold_then_lift_equals_retract(profile):
-    # approach in 0.5 tau, hold 60 tau, lift at d0/tau through jump-off; default grid
-    D0 = float(profile.g(1e-4))  # a0 = 1e-4 m
+def test_long_hold_then_lift_equals_retract():
+    # approach in 0.5 tau, hold 60 tau, lift at d0/tau through jump-off; default grid.
+    # (The cone, a power law and a tabulated profile are checked the same way in
+    # benchmarks/bench_foundation.py, to keep the compilations here few.)
+    profile = PARABOLA
     v = D0 / TAU
     t_app, t_hold, t_lift = 0.5 * TAU, 60 * TAU, 4 * TAU
     ts = np.concatenate(
@@ -198,7 +214,7 @@ def _flat_punch_force(prony, a0, ts, d_end, t_ramp):
 
 def test_flat_punch_hold_follows_relaxation_modulus():
     a0 = 1e-4
-    punch = jc.FlatPunch(jnp.asarray(a0))
+    punch = jc.FlatPunch(_f64(a0))
     prony = CHAIN.to_prony()
     tau_max = float(jnp.max(prony.tau))
     # (1) fast ramp, then hold: the hereditary integral of G(t)
@@ -211,7 +227,7 @@ def test_flat_punch_hold_follows_relaxation_modulus():
     np.testing.assert_allclose(np.asarray(sol.force), ref, rtol=1e-12, atol=1e-15)
     # (2) a step at ts[0] then hold: F(t) = 8 a0 d0 G(t), exactly
     ts = np.linspace(0.0, 5 * tau_max, 71)
-    sol = _sim(CHAIN, punch, DGAMMA, jnp.asarray(ts), jnp.full(71, D0), grid=4)
+    sol = _sim(CHAIN, punch, DGAMMA, jnp.asarray(ts), jnp.asarray(np.full(71, D0)), grid=4)
     np.testing.assert_allclose(
         np.asarray(sol.force), 8 * a0 * D0 * np.asarray(CHAIN.relaxation(ts)), rtol=1e-13
     )
@@ -222,7 +238,7 @@ def test_flat_punch_pulloff_is_glass_kendall_at_any_speed():
     # reaches the criterion at the edge: F = 2 a0 q_c = -sqrt(8 pi (4 G_g) dgamma a0^3)
     # (Kendall with the glass modulus), whatever the history
     a0 = 1e-4
-    punch = jc.FlatPunch(jnp.asarray(a0))
+    punch = jc.FlatPunch(_f64(a0))
     tau_max = float(jnp.max(CHAIN.to_prony().tau))
     Gg = float(CHAIN.glass_modulus)
     kendall = -np.sqrt(8 * np.pi * 4 * Gg * float(DGAMMA) * a0**3)
@@ -251,7 +267,7 @@ def test_grid_convergence_second_order():
     ts, d = _aph_history()
     sols = {
         16: _sim(SOLID, PARABOLA, DGAMMA, ts, d, grid=16),
-        32: _sim(SOLID, PARABOLA, DGAMMA, ts, d, grid=32, estimate_error=True),
+        32: _sim(SOLID, PARABOLA, DGAMMA, ts, d, grid=32),
         64: _sim(SOLID, PARABOLA, DGAMMA, ts, d),  # the default grid
     }
     before_lift = np.asarray(ts) <= 2 * TAU
@@ -263,15 +279,9 @@ def test_grid_convergence_second_order():
     t_j = [float(sols[n].jumpoff_time) for n in (16, 32, 64)]
     order_t = np.log2(abs(t_j[0] - t_j[1]) / abs(t_j[1] - t_j[2]))
     assert 1.5 < order_t < 3.0, (t_j, order_t)
-    # the error of the default grid is below 1e-4 of the force scale (Richardson)
+    # the error of the default grid is below 1e-4 of the force scale (Richardson; the
+    # estimate of simulate(..., estimate_error=True) is checked in the benchmark script)
     assert diffs[1] / 3 / scale < 1e-4
-    # the estimate of simulate(..., estimate_error=True) on the 32-cell grid (from 32 and
-    # 16 cells) matches the actual difference to the default grid (3/4 of the 32-cell error)
-    est = sols[32]
-    estimate = float(est.stats["relative_discretisation_error"])
-    both = (np.asarray(est.contact_radius) > 0) == (np.asarray(sols[64].contact_radius) > 0)
-    actual = np.max(np.abs(F[32] - F[64])[both]) / scale
-    assert 0.3 < actual / (estimate * 3 / 4) < 3, (actual, estimate)
 
 
 def test_diffrax_matches_exact_update_through_cycles():
@@ -322,7 +332,7 @@ def test_gradients_match_finite_differences():
         return _outputs(sol, before)
 
     p = jnp.array([1e5, 2e4, 2e2, float(DGAMMA)])
-    jac = np.asarray(jax.jit(jax.jacrev(outputs))(p))  # reverse mode, as used in fitting
+    jac = np.asarray(jax.jit(jax.jacrev(outputs), compiler_options=_FAST_COMPILE)(p))
     assert np.all(np.isfinite(jac))
     for k in range(4):
         h = 1e-5 * float(p[k])
@@ -339,7 +349,7 @@ def test_gradients_match_finite_differences():
 
 
 def _compliant(k):
-    return jc.CompliantLoading(jnp.asarray(k))
+    return jc.CompliantLoading(_f64(k))
 
 
 def test_compliant_elastic_jkr_and_instability():
@@ -388,7 +398,7 @@ def test_vmap_and_result_codes():
 
     G0 = jnp.array([8e4, 1e5, 1.2e5])
     dd = jnp.stack([d, d, d.at[10].set(jnp.nan)])
-    sols = jax.jit(jax.vmap(run))(G0, dd)
+    sols = jax.jit(jax.vmap(run), compiler_options=_FAST_COMPILE)(G0, dd)
     assert sols.force.shape == (3, M)
     RES = jc._solution.RESULTS
     np.testing.assert_array_equal(np.asarray(sols.result == RES.detached), [True, True, False])

@@ -977,10 +977,15 @@ def simulate(
     if not isinstance(method, ExactUpdate | DiffraxODE):
         raise TypeError(f"`method` must be ExactUpdate() or DiffraxODE(...); got {method!r}.")
 
-    sol = _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
+    # one compiled program serves every call with the same configuration (types, static
+    # options, shapes), whatever the parameter values
+    rheology, profile, work_of_adhesion, loading, grid = _floats_to_arrays(
+        (rheology, profile, work_of_adhesion, loading, grid)
+    )
+    sol = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
     if estimate_error:
         coarse = FoundationGrid(cells=max(grid.cells // 2, 2), depth=grid.depth)
-        sol_c = _simulate(rheology, profile, work_of_adhesion, ts, u, loading, coarse, method)
+        sol_c = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, coarse, method)
         # samples where one grid has jumped off and the other not are left out: near the
         # fold the front moves as sqrt(t* - t) and any shift of t* is a large force jump
         both = (sol.contact_radius > 0) == (sol_c.contact_radius > 0)
@@ -998,6 +1003,20 @@ def simulate(
         force = sol.result.error_if(sol.force, is_error(sol.result))
         sol = eqx.tree_at(lambda s: s.force, sol, force)
     return sol
+
+
+def _floats_to_arrays(tree):
+    """Python and NumPy floats become arrays, weakly typed arrays strongly typed (the
+    cache key of a compiled program holds the types, not the values)."""
+
+    def convert(leaf):
+        if isinstance(leaf, float | np.floating):
+            return jnp.asarray(leaf, dtype=float)
+        if isinstance(leaf, jax.Array) and getattr(leaf, "weak_type", False):
+            return lax.convert_element_type(leaf, leaf.dtype)
+        return leaf
+
+    return jax.tree_util.tree_map(convert, tree)
 
 
 def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
@@ -1227,3 +1246,8 @@ def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
         result=result,
         stats=stats,
     )
+
+
+# compiled once per configuration and cached: an eager call of `simulate` compiles the whole
+# history loop (scan, refinements) as one program instead of dispatching its parts one by one
+_simulate_jit = eqx.filter_jit(_simulate)

@@ -90,7 +90,11 @@ def _add_simulate(sub) -> None:
     )
     p.add_argument(
         "--stiffness", type=float, default=None,
-        help="stiffness of the loading system (cantilever) [N/m] (full-history model)",
+        help=(
+            "stiffness of a compliant loading system (cantilever) [N/m], with --hold: the "
+            "approach-hold-lift history is then the drive position (0 where the undeflected "
+            "indenter touches) and displacement_m the indentation"
+        ),
     )
     p.add_argument("--out", type=Path, required=True, help="output CSV file")
     p.add_argument("--json", action="store_true", help="print the events as JSON on stdout")
@@ -126,6 +130,7 @@ def _check_simulate_args(args) -> None:
 
 
 def _simulate(args):
+    import equinox as eqx
     import jax.numpy as jnp
     import numpy as np
 
@@ -139,21 +144,36 @@ def _simulate(args):
             rheology, profile, work_of_adhesion=args.work_of_adhesion, depth=args.depth,
             velocity=args.velocity, ts=ts, throw=False,
         )
-    v_in = args.approach_velocity or args.velocity
+    v_in = args.approach_velocity if args.approach_velocity is not None else args.velocity
     t_in = args.depth / v_in
     t_hold = t_in + args.hold
-    t = np.asarray(ts)
+    # The history is piecewise linear with corners at the end of the approach and of the
+    # hold. `simulate` takes its input as piecewise linear between the samples, so the two
+    # corners are added to the simulated times (the output keeps the requested samples).
+    t_out = np.asarray(ts)
+    corners = np.array([t for t in (t_in, t_hold) if 0.0 < t < args.duration])
+    t_sim = np.union1d(t_out, corners)
+    rows = np.searchsorted(t_sim, t_out)
     d = np.where(
-        t <= t_in, v_in * t,
-        np.where(t <= t_hold, args.depth, args.depth - args.velocity * (t - t_hold)),
+        t_sim <= t_in, v_in * t_sim,
+        np.where(t_sim <= t_hold, args.depth, args.depth - args.velocity * (t_sim - t_hold)),
     )
     loading = jc.DisplacementControl()
     if args.stiffness is not None:
+        # with a compliant loading system the history above is the drive position z(t);
+        # the CSV column displacement_m is the indentation d = z - F/k
         loading = jc.CompliantLoading(stiffness=args.stiffness)
-        # with a compliant loading system the history above is the drive position z(t)
-    return jc.simulate(
-        rheology, profile, args.work_of_adhesion, ts, jnp.asarray(d), loading=loading, throw=False
+    sol = jc.simulate(
+        rheology, profile, args.work_of_adhesion, jnp.asarray(t_sim), jnp.asarray(d),
+        loading=loading, throw=False,
     )
+    if t_sim.shape != t_out.shape:
+        sol = eqx.tree_at(
+            lambda s: (s.ts, s.displacement, s.force, s.contact_radius),
+            sol,
+            (sol.ts[rows], sol.displacement[rows], sol.force[rows], sol.contact_radius[rows]),
+        )
+    return sol
 
 
 def _run_simulate(args) -> int:

@@ -62,6 +62,13 @@ def test_simulate_no_detachment_gives_null(tmp_path, capsys):
         (["--eta1", "nan"], "--eta1"),
         (["--radius", "5"], "--radius"),
         (["--samples", "1"], "--samples"),
+        (["--hold", "-0.01"], "--hold"),
+        (["--hold", "inf"], "--hold"),
+        (["--hold", "0.01", "--stiffness", "0"], "--stiffness"),
+        (["--hold", "0.01", "--stiffness", "-5"], "--stiffness"),
+        (["--hold", "0.01", "--approach-velocity", "0"], "--approach-velocity"),
+        (["--stiffness", "5"], "--stiffness"),  # needs --hold
+        (["--approach-velocity", "1e-4"], "--approach-velocity"),  # needs --hold
     ],
 )
 def test_simulate_bad_arguments_exit_nonzero_and_write_nothing(tmp_path, capsys, change, name):
@@ -77,6 +84,124 @@ def test_simulate_bad_arguments_exit_nonzero_and_write_nothing(tmp_path, capsys,
     assert name in capsys.readouterr().err
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------------------
+# --hold: approach from first touch, hold, lift on the MDR foundation
+# --------------------------------------------------------------------------------------
+
+SOLID = dict(G0=1e6, G1=2e5, eta1=1e4)  # tau = eta1 / (G0 + G1) = 8.3 ms
+HOLD_ARGS = dict(depth=4e-6, v_lift=1e-4, v_in=3e-4, hold=0.02, duration=0.1, samples=251)
+
+
+def _read_csv(path):
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    header = list(rows[0])
+    cols = {k: np.array([float(r[k]) for r in rows]) for k in header}
+    return header, cols
+
+
+def _hold_history(depth, v_lift, v_in, hold, duration, samples):
+    """Drive history built here from the issue's words: the requested samples, and the
+    same samples with the two corners (end of approach, end of hold) added."""
+    t_out = np.linspace(0.0, duration, samples)
+    t_in = depth / v_in
+    knots_t = [0.0, t_in, t_in + hold, duration]
+    knots_d = [0.0, depth, depth, depth - v_lift * (duration - t_in - hold)]
+    t_sim = np.unique(np.concatenate([t_out, knots_t]))
+    keep = np.isin(t_sim, t_out)
+    return t_out, t_sim, np.interp(t_sim, knots_t, knots_d), keep
+
+
+def _hold_cli(tmp_path, h, extra=()):
+    out = tmp_path / "hold.csv"
+    argv = BASE + [
+        "--hold", str(h["hold"]), "--approach-velocity", str(h["v_in"]),
+        "--duration", str(h["duration"]), "--samples", str(h["samples"]),
+        "--out", str(out), "--json", *extra,
+    ]
+    return main(argv), out
+
+
+def test_simulate_hold_matches_direct_simulate(tmp_path, capsys):
+    h = HOLD_ARGS
+    rc, out = _hold_cli(tmp_path, h)
+    assert rc == 0
+    events = json.loads(capsys.readouterr().out)
+    header, cols = _read_csv(out)
+    assert header == ["time_s", "displacement_m", "force_N", "contact_radius_m"]
+    t_out, t_sim, d_sim, keep = _hold_history(
+        h["depth"], h["v_lift"], h["v_in"], h["hold"], h["duration"], h["samples"]
+    )
+    assert keep.sum() == h["samples"] and len(t_sim) == h["samples"] + 2  # corners off-grid
+    np.testing.assert_allclose(cols["time_s"], t_out, rtol=1e-15, atol=0)
+    # time 0 is first touch: no indentation, no force, no contact there
+    assert cols["time_s"][0] == 0.0 and cols["displacement_m"][0] == 0.0
+    assert cols["force_N"][0] == 0.0 and cols["contact_radius_m"][0] == 0.0
+    # approach at --approach-velocity, hold at --depth, lift at --velocity
+    t, d = cols["time_s"], cols["displacement_m"]
+    t_in, t_hold = h["depth"] / h["v_in"], h["depth"] / h["v_in"] + h["hold"]
+    app, hold, lift = t <= t_in, (t > t_in) & (t <= t_hold), t > t_hold
+    assert app.sum() > 10 and hold.sum() > 10 and lift.sum() > 10
+    np.testing.assert_allclose(d[app], h["v_in"] * t[app], rtol=1e-12, atol=1e-22)
+    np.testing.assert_allclose(d[hold], h["depth"], rtol=1e-12)
+    np.testing.assert_allclose(d[lift], h["depth"] - h["v_lift"] * (t[lift] - t_hold), rtol=0,
+                               atol=1e-12 * h["depth"])
+    # the force is that of a direct call with the same (exact, piecewise-linear) history
+    ref = jc.simulate(
+        jc.StandardModel(**SOLID), jc.Parabola(1e-4), 0.05, t_sim, d_sim
+    )
+    F = cols["force_N"]
+    np.testing.assert_allclose(F, np.asarray(ref.force)[keep], rtol=1e-9,
+                               atol=1e-12 * np.abs(F).max())
+    np.testing.assert_allclose(cols["contact_radius_m"], np.asarray(ref.contact_radius)[keep],
+                               rtol=1e-9, atol=1e-18)
+    # physics along the way: the force relaxes during the hold, the contact jumps off on
+    # the lift and the events are those of the library
+    assert np.all(np.diff(F[hold]) < 0)
+    assert t_hold < events["jumpoff_time_s"] < h["duration"]
+    np.testing.assert_allclose(events["jumpoff_time_s"], float(ref.jumpoff_time), rtol=1e-9)
+    np.testing.assert_allclose(events["jumpoff_force_N"], float(ref.jumpoff_force), rtol=1e-9)
+    np.testing.assert_allclose(events["max_tensile_force_N"], float(ref.max_tensile_force),
+                               rtol=1e-9)
+    np.testing.assert_allclose(events["jumpoff_contact_radius_m"], float(ref.jumpoff_radius),
+                               rtol=1e-9)
+    assert events["max_tensile_force_N"] <= F.min() < 0
+    assert F[-1] == 0.0 and cols["contact_radius_m"][-1] == 0.0
+
+
+def test_simulate_hold_with_stiffness_matches_compliant_simulate(tmp_path, capsys):
+    # the cantilever deflects: the drive must be lifted further to pull the contact off
+    h = dict(HOLD_ARGS, duration=0.25)
+    k = 20.0  # N/m; the contact stiffness 8 G a0 is about 160 N/m
+    rc, out = _hold_cli(tmp_path, h, ["--stiffness", str(k)])
+    assert rc == 0
+    events = json.loads(capsys.readouterr().out)
+    _, cols = _read_csv(out)
+    t_out, t_sim, z_sim, keep = _hold_history(
+        h["depth"], h["v_lift"], h["v_in"], h["hold"], h["duration"], h["samples"]
+    )
+    ref = jc.simulate(
+        jc.StandardModel(**SOLID), jc.Parabola(1e-4), 0.05, t_sim, z_sim,
+        loading=jc.CompliantLoading(k),
+    )
+    F, d = cols["force_N"], cols["displacement_m"]
+    np.testing.assert_allclose(F, np.asarray(ref.force)[keep], rtol=1e-9,
+                               atol=1e-12 * np.abs(F).max())
+    np.testing.assert_allclose(d, np.asarray(ref.displacement)[keep], rtol=1e-9, atol=1e-18)
+    # the CSV displacement is the indentation: the cantilever balances the contact force,
+    # k (z - d) = F, with the drive z following approach-hold-lift
+    z = z_sim[keep]
+    in_c = cols["contact_radius_m"] > 0
+    np.testing.assert_allclose(k * (z - d)[in_c], F[in_c], rtol=0, atol=1e-9 * np.abs(F).max())
+    # pushing, the indentation lags the drive; pulling (adhesion), it leads it
+    assert np.all(np.sign(z - d)[in_c] == np.sign(F)[in_c])
+    assert d.max() < 0.9 * h["depth"] and F.min() < 0
+    assert h["depth"] / h["v_in"] + h["hold"] < events["jumpoff_time_s"] < h["duration"]
+    np.testing.assert_allclose(events["jumpoff_time_s"], float(ref.jumpoff_time), rtol=1e-9)
+    np.testing.assert_allclose(events["jumpoff_force_N"], float(ref.jumpoff_force), rtol=1e-9)
+    assert F[-1] == 0.0
 
 
 def test_demo_writes_png(tmp_path):

@@ -180,3 +180,34 @@ def test_bad_inputs():
         jc.pull_off(p, effective_modulus=E, work_of_adhesion=0.0)
     with pytest.raises(ValueError, match="control"):
         jc.pull_off(p, control="speed", **KW)
+
+
+@pytest.mark.parametrize("dtype, ulps", [(np.float64, 4), (np.float32, 4)])
+def test_reciprocal_cube_root_against_numpy(dtype, ulps):
+    # the multiply-only y^(-1/3) behind the parabola's front root, over the whole range of
+    # normal numbers whose cube stays representable
+    from jaxcontact._elastic import _rcbrt_positive
+
+    lim = 90 if dtype == np.float32 else 300
+    rng = np.random.default_rng(3)
+    y = np.concatenate([10.0 ** rng.uniform(-lim / 3, lim / 3, 100_000),
+                        rng.uniform(1 / 16, 4, 100_000)]).astype(dtype)
+    got = np.asarray(jax.jit(_rcbrt_positive)(jnp.asarray(y))).astype(np.float64)
+    exact = 1.0 / np.cbrt(y.astype(np.float64))
+    assert got.dtype == np.float64 and np.all(np.isfinite(got))
+    assert np.max(np.abs(got / exact - 1)) < ulps * np.finfo(dtype).eps
+
+
+def test_parabola_front_root_solves_the_quartic():
+    # a^2/R - c sqrt(a) = m on the stable branch, from the fold to deep compression (weak
+    # adhesion: a / a_fold up to 1e9, where Cardano's u + v cancels if written naively)
+    from jaxcontact._elastic import _parabola_stable_radius
+
+    R, c = 1e-4, 3e-5
+    a_fold = (c * R / 4) ** (2 / 3)
+    a = a_fold * np.concatenate([1 + np.logspace(-6, 0, 50), np.logspace(0.3, 9, 60)])
+    m = a**2 / R - c * np.sqrt(a)
+    got = np.asarray(_parabola_stable_radius(jnp.asarray(m), c, R))
+    # near the fold the root is ill-conditioned (double root): sqrt(eps) behaviour
+    tol = np.where(a < 1.01 * a_fold, 1e-7, 1e-13)
+    assert np.all(np.abs(got / a - 1) < tol), np.max(np.abs(got / a - 1) / tol)

@@ -1,12 +1,15 @@
 """Benchmark of `jaxcontact.simulate` (the MDR foundation) and its discretisation error.
 
-Run: `/tmp/venv/bin/python benchmarks/bench_foundation.py [--batch 1000] [--repeats 7]`
+Run: `python benchmarks/bench_foundation.py [--samples 5000] [--batch 1000] [--repeats 7]`
+(about 5 minutes on 2 CPU cores; `--skip-checks` for the speed and error tables only).
 
 Claims measured here:
 
 1. Time per curve for an approach-hold-lift history of 5,000 samples at the default grid
    (`FoundationGrid()`, 64 cells), after compilation, and for a batch of curves under `vmap`
-   (1,000 by default); medians over repeats and the ratio batch/single per curve.
+   (1,000 by default); medians over repeats and the ratio batch/single per curve; the time
+   of the Jacobian of the force curve with respect to (G0, G1, eta1, dgamma) (forward mode,
+   what a Levenberg-Marquardt fit evaluates per iteration).
 2. The discretisation error at that grid, against a fine reference grid: the largest force
    error over the samples where both grids are in contact, the jump-off time and force and
    the largest tensile force; a table of the error against the number of cells with the
@@ -14,8 +17,9 @@ Claims measured here:
 3. Heavier correctness checks that the test file leaves out: the gradient through the
    compliant loading system (Newton's method, implicit differentiation) against finite
    differences; reverse against forward mode for the rigid loading; the long hold then lift
-   against `retract` for a cone, a power law and a tabulated profile; the soft-spring limit
-   of the compliant loading (force control).
+   against `retract` for a cone, a power law and a tabulated profile; the compliant loading
+   of an elastic JKR contact against its closed form down to the soft-spring (force-control)
+   limit; the convergence of the viscoelastic compliant jump-off with the sampling.
 
 Everything runs on the CPU in float64.
 """
@@ -90,6 +94,19 @@ def bench_speed(n_samples: int, batch: int, repeats: int):
     print(f"  batch of {batch} under vmap: first call {first_batch:.2f} s, "
           f"median {med_batch:.2f} s = {med_batch / batch * 1e3:.2f} ms per curve")
     print(f"  ratio (per-curve batch / single): {med_batch / batch / med_single:.2f}")
+
+    def curve(p):
+        sol = jc.simulate(jc.StandardModel(p[0], p[1], p[2]), PROFILE, p[3], ts, d, throw=False)
+        return sol.force
+
+    jac = jax.jit(jax.jacfwd(curve))
+    p = jnp.array([G0, G1, ETA1, DGAMMA])
+    t0 = time.perf_counter()
+    jax.block_until_ready(jac(p))
+    compile_jac = time.perf_counter() - t0
+    med_jac, _, _ = timed(jac, p, repeats=repeats)
+    print(f"  Jacobian of the {n_samples}-sample force curve w.r.t. 4 parameters (jacfwd): "
+          f"compile+first run {compile_jac:.2f} s, median run {med_jac * 1e3:.1f} ms")
     return med_single, med_batch
 
 
@@ -143,14 +160,16 @@ def check_gradients():
     print("\n== gradient checks (finite differences, central, relative step 1e-6)")
     ts, z = history(600)
 
-    # compliant loading: through Newton's method on the loading spring
+    # compliant loading: through Newton's method on the loading spring and the jump-off
+    # solved inside the step (sum of forces, largest tensile force, jump-off force and time)
     loading = jc.CompliantLoading(50.0)
 
     def total(p, loading=loading):
         sol = jc.simulate(jc.StandardModel(p[0], p[1], p[2]), PROFILE, p[3], ts, z, grid=16,
                           loading=loading)
         before = ts < 3 * TAU
-        return jnp.sum(jnp.where(before, sol.force, 0.0)) + sol.max_tensile_force * 100
+        jump = sol.jumpoff_force * 100 + sol.jumpoff_time / TAU * 1e-2
+        return jnp.sum(jnp.where(before, sol.force, 0.0)) + sol.max_tensile_force * 100 + jump
 
     p = jnp.array([G0, G1, ETA1, DGAMMA])
     f = jax.jit(total)
@@ -209,19 +228,80 @@ def check_profiles_and_limits():
         print(f"  {name:20s} force {errs[0]:.1e}  jump-off time {errs[1]:.1e} tau  "
               f"jump-off force {errs[2]:.1e}  max tensile {errs[3]:.1e}")
 
-    print("\n== compliant loading, elastic JKR: jump-off force against force control")
+    print("\n== compliant loading, elastic JKR, against the closed form (dF/dd = -k on JKR)")
     G = 1e5
+    E = 4 * G
     fc = -1.5 * np.pi * DGAMMA * R
     ts = np.linspace(0, 2, 3001)
-    for k in (10.0, 1.0, 0.1):
+    for k in (1e7, 10.0, 1.0, 0.1, 0.01):
         # preload to d0 (contact radius 1e-4 m > the force-control radius), then lift the
         # drive far enough for the spring to pull beyond the pull-off force
-        preload = 4 / 3 * 4 * G * np.sqrt(R) * D0**1.5
-        z = np.interp(ts, [0, 1, 2], [0, D0 + preload / k, -2 * D0 + 1.5 * fc / k])
+        preload = 4 / 3 * E * np.sqrt(R) * D0**1.5
+        z_top, z_end = D0 + preload / k, -2 * D0 + 1.5 * fc / k
+        z = np.interp(ts, [0, 1, 2], [0, z_top, z_end])
         sol = jc.simulate(jc.Elastic(G), PROFILE, DGAMMA, jnp.asarray(ts), jnp.asarray(z),
                           loading=jc.CompliantLoading(k))
-        print(f"  k = {k:5.1f} N/m: jump-off force / (-3/2 pi dgamma R) = "
-              f"{float(sol.jumpoff_force) / fc:.5f}")
+        a_c, F_c, d_c = _jkr_compliant(E, DGAMMA, k)
+        t_c = 1 + (z_top - (d_c + F_c / k)) / (z_top - z_end)
+        print(f"  k = {k:7.2g} N/m: jump-off force / (-3/2 pi dgamma R) = "
+              f"{float(sol.jumpoff_force) / fc:.9f} (closed form {F_c / fc:.9f}); "
+              f"rel. errors: force {abs(float(sol.jumpoff_force) / F_c - 1):.1e}, radius "
+              f"{abs(float(sol.jumpoff_radius) / a_c - 1):.1e}, time "
+              f"{abs(float(sol.jumpoff_time) / t_c - 1):.1e}")
+
+    print("\n== compliant loading, gradient of the jump-off (elastic) against the closed form")
+    ts2, z2 = jnp.linspace(0, 2, 201), jnp.interp(jnp.linspace(0, 2, 201),
+                                                  jnp.array([0.0, 1.0, 2.0]),
+                                                  jnp.array([0.0, D0, -2 * D0]))
+
+    def jump(p):
+        sol = jc.simulate(jc.Elastic(p[0]), PROFILE, p[1], ts2, z2,
+                          loading=jc.CompliantLoading(p[2]))
+        return jnp.stack([sol.jumpoff_force, sol.jumpoff_radius])
+
+    p = np.array([G, DGAMMA, 20.0])
+    jac = np.asarray(jax.jit(jax.jacrev(jump))(jnp.asarray(p)))
+    for i, name in enumerate(("G", "dgamma", "k")):
+        h = 1e-5 * p[i]
+        plus, minus = p.copy(), p.copy()
+        plus[i] += h
+        minus[i] -= h
+        fd = (np.array(_jkr_compliant(4 * plus[0], plus[1], plus[2])[1::-1])
+              - np.array(_jkr_compliant(4 * minus[0], minus[1], minus[2])[1::-1])) / (2 * h)
+        print(f"  d/d{name:6s}: force {jac[0, i]: .6e} (closed form {fd[0]: .6e}), radius "
+              f"{jac[1, i]: .6e} ({fd[1]: .6e}); rel.diff "
+              f"{np.max(np.abs(jac[:, i] / fd - 1)):.1e}")
+
+    print("\n== compliant loading, standard model: jump-off against the sampling "
+          "(approach-hold-lift, 32 cells; reference 19,200 samples)")
+    rheo = jc.StandardModel(G0, G1, ETA1)
+    for k in (50.0, 2.0):
+        knots_z = [0.0, D0, D0, -0.6 * D0 - 3 * np.pi * DGAMMA * R / k]
+        res = {}
+        for n in (600, 2400, 19200):
+            ts = np.linspace(0, 5 * TAU, n)
+            z = np.interp(ts, [0, TAU, 2 * TAU, 5 * TAU], knots_z)
+            sol = jc.simulate(rheo, PROFILE, DGAMMA, jnp.asarray(ts), jnp.asarray(z), grid=32,
+                              loading=jc.CompliantLoading(k))
+            res[n] = (float(sol.jumpoff_time), float(sol.jumpoff_force))
+        for n in (600, 2400):
+            print(f"  k = {k:4.0f} N/m, {n:5d} samples: jump-off time error "
+                  f"{abs(res[n][0] - res[19200][0]) / TAU:.1e} tau "
+                  f"({abs(res[n][0] - res[19200][0]) / (5 * TAU / (n - 1)):.2f} sample "
+                  f"intervals), force {abs(res[n][1] / res[19200][1] - 1):.1e}")
+
+
+def _jkr_compliant(E, dgamma, k):
+    """(radius, force, indentation) where dF/dd = -k on the JKR curve of a parabola."""
+    from scipy.optimize import brentq
+
+    dF = lambda s: 4 * E * s**2 / R - 1.5 * np.sqrt(8 * np.pi * E * dgamma * s)  # noqa: E731
+    dd = lambda s: 2 * s / R - 0.5 * np.sqrt(2 * np.pi * dgamma / (E * s))  # noqa: E731
+    a_fold = (np.pi * dgamma * R**2 / (8 * E)) ** (1 / 3)
+    a_fc = (9 * np.pi * dgamma * R**2 / (8 * E)) ** (1 / 3)
+    a = brentq(lambda s: dF(s) + k * dd(s), a_fold * (1 + 1e-13), a_fc, xtol=1e-25, rtol=1e-15)
+    F = 4 * E * a**3 / (3 * R) - np.sqrt(8 * np.pi * E * dgamma * a**3)
+    return a, F, a**2 / R - np.sqrt(2 * np.pi * a * dgamma / E)
 
 
 def main():

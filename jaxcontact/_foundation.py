@@ -64,8 +64,8 @@ the minimiser ($\mathrm{d}F/\mathrm{d}d = -k$ along the front; the criterion's f
 stiff spring, force control's minimum of $F$ for $k \to 0$). Exact for an elastic solid
 at any $k$ and any sampling; for a viscoelastic one the jump-off converges at first order
 in the sample spacing (the indentation accelerates towards the instability, while a step
-takes it linear in time): about 1e-3 relaxation times and 6e-4 of the force with 600
-samples over the benchmark's approach-hold-lift at $k$ = 2 N/m.
+takes it linear in time): in the benchmark's approach-hold-lift with $k$ = 2 N/m and 600
+samples, 1.2e-3 relaxation times (0.14 of a sample interval) and 6e-4 of the force.
 
 **Discretisation.** Springs sit at nodes $x_j$ uniform in the touch depth: $g(x_j) = j\,
 g_\max/n$ (for the parabola $x_j \propto \sqrt j$, densest at the edge): springs of one cell
@@ -81,9 +81,11 @@ exactly. The force is $F = 2\int_0^a q\,dx = 8\big[G_g a d - G_\infty\int_0^a g
 included). The discretisation errors are the interpolation of $s$ between springs of
 different histories, second order in the cell size, and the timing of springs that change
 state inside a step (located by linear interpolation in time; exact for virgin springs). For
-an approach-hold-lift of the standard model (benchmark) the default 64 cells give a force
-error of 2e-5 of its peak (1e-4 with 32 cells, 5e-4 with 16), the jump-off time to 5e-6
-relaxation times; the observed order is 2.0.
+the approach-hold-lift of the standard model in `benchmarks/bench_foundation.py` (5,000
+samples, against 1,024 cells) the default 64 cells give a largest force error of 2.5e-5 of
+the peak force (2.1e-4 with 32 cells, 4.9e-4 with 16); over approach and hold alone 1.9e-5
+(7.6e-5, 3.2e-4), observed order 2.0; the jump-off time to 5e-6 relaxation times (order
+2). `estimate_error=True` reports 6e-5 for the force there (it overestimates).
 
 **Time integration.** `ExactUpdate()` (default) uses the closed-form updates above for the
 piecewise-linear input: no time-step error. `DiffraxODE(...)` integrates the dashpot ODEs of
@@ -145,9 +147,11 @@ class FoundationGrid(eqx.Module):
     **Arguments:**
 
     - `cells`: number of cells $n$ (static). Default `DEFAULT_CELLS` = 64, which keeps the
-      discretisation error of the force at about $2\times10^{-5}$ of its peak for an
-      approach-hold-lift history (measured in `benchmarks/bench_foundation.py`; the error is
-      second order, $\propto n^{-2}$: $10^{-4}$ with 32 cells). The elastic solid and a
+      discretisation error of the force at about $2.5\times10^{-5}$ of its peak for an
+      approach-hold-lift history (measured in `benchmarks/bench_foundation.py`; second
+      order, $\propto n^{-2}$, over approach and hold: $1.9\times10^{-5}$ with 64 cells,
+      $7.6\times10^{-5}$ with 32; less regular on the lift, where springs are released
+      between nodes: $2.1\times10^{-4}$ with 32 cells). The elastic solid and a
       lift from a fully relaxed state are exact on any grid. Use
       `simulate(..., estimate_error=True)` for an estimate for a given history.
     - `depth`: largest indentation $g_\max$ [m] the grid covers. Default, times $(1 + 1/n)$:

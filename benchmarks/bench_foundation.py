@@ -1,7 +1,7 @@
 """Benchmark of `jaxcontact.simulate` (the MDR foundation) and its discretisation error.
 
 Run: `python benchmarks/bench_foundation.py [--samples 5000] [--batch 1000] [--repeats 7]`
-(about 5 minutes on 2 CPU cores; `--skip-checks` for the speed and error tables only).
+(about 8 minutes on 2 shared CPU cores; `--skip-checks` for the speed and error tables only).
 
 Claims measured here:
 

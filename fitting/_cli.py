@@ -1,9 +1,17 @@
 """Command line: ``jaxcontact fit FILE [FILE ...] --radius M --out DIR``.
 
 `add_fit_arguments(parser)` adds the options to an argparse (sub)parser; `run_fit(args)`
-runs the fit and returns the exit code. All input is validated and the fit done before
-anything is written; the report goes to a temporary folder beside ``DIR`` and is moved
-into place at the end, so a failed run writes no files. JAX's persistent compilation cache
+runs the fit and returns the exit code; `load_inputs(args)` is its input stage.
+
+Instrument files (anything but ``.csv``, ``.tsv``, ``.txt``, ``.dat``) are read with
+:func:`fitting.load_afm`, which takes the segments, the units and the spring constant from
+the file (the tip position is ``height − F/k``). ``--spring-constant`` given with an
+instrument file overrides the file's value (the force is rescaled by ``k/k_file``, since
+the instrument measured the deflection) and selects the compliant loading model.
+
+All input is validated and the fit done before anything is written; the report goes to a
+temporary folder beside ``DIR`` and is moved into place at the end, so a failed run writes
+no files. JAX's persistent compilation cache
 (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``) spares a second run the compile.
 """
 
@@ -17,7 +25,7 @@ import shutil
 import sys
 import tempfile
 
-__all__ = ["add_fit_arguments", "run_fit"]
+__all__ = ["add_fit_arguments", "load_inputs", "run_fit"]
 
 
 def add_fit_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -32,7 +40,10 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     parser.add_argument("--rheology", default="standard", metavar="standard|prony:N",
                         help="standard model (G0, G1, eta1) or Prony series with N arms")
     parser.add_argument("--spring-constant", type=float, default=None, metavar="N_M",
-                        help="cantilever stiffness [N/m]: compliant loading (history model)")
+                        help="cantilever stiffness [N/m]: compliant loading (history model); "
+                             "overrides the spring constant of an instrument file")
+    parser.add_argument("--cells", type=int, default=32, metavar="N",
+                        help="foundation grid cells of the history model (default 32)")
     parser.add_argument("--units", default=None, metavar="ROLE=UNIT,...",
                         help="units of CSV columns without units, e.g. "
                              "'displacement=nm,force=nN'")
@@ -64,6 +75,40 @@ def _enable_cache():
         pass
 
 
+_TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
+
+
+def load_inputs(args: argparse.Namespace) -> list:
+    """The curves of ``args.files`` (CSV with ``--units``; instrument files with the
+    spring constant of the file, or ``--spring-constant`` when given).
+
+    Raises `ValueError` naming the option or the file.
+    """
+    from ._data import load_curve, parse_units
+
+    if args.units is not None:
+        try:
+            parse_units(args.units)
+        except ValueError as exc:
+            raise ValueError(f"--units: {exc}") from None
+    curves = []
+    for f in args.files:
+        p = pathlib.Path(f)
+        if not p.is_file():
+            raise ValueError(f"FILE {f}: no such file")
+        try:
+            if p.suffix.lower() in _TABLE_SUFFIXES:
+                curves += load_curve(p, units=args.units)
+            else:
+                curves += load_curve(p, spring_constant=args.spring_constant)
+        except (ValueError, ImportError, OSError) as exc:
+            msg = str(exc)
+            for prefix in (f"{p}: ", f"{f}: "):  # the loaders name the file already
+                msg = msg.removeprefix(prefix)
+            raise ValueError(f"FILE {f}: {msg}") from None
+    return curves
+
+
 def run_fit(args: argparse.Namespace) -> int:
     """Run a fit from parsed arguments; returns the exit code (0 on success)."""
     if not (math.isfinite(args.radius) and args.radius > 0):
@@ -76,6 +121,11 @@ def run_fit(args: argparse.Namespace) -> int:
         return _error("--spring-constant needs --model history")
     if args.starts < 1:
         return _error(f"--starts must be >= 1; got {args.starts}")
+    cells = getattr(args, "cells", 32)
+    if cells < 2:
+        return _error(f"--cells must be >= 2; got {cells}")
+    if args.max_samples is not None and args.max_samples < 2:
+        return _error(f"--max-samples must be >= 2; got {args.max_samples}")
     from ._objective import make_spec
 
     try:
@@ -86,25 +136,10 @@ def run_fit(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         return _error(f"--out {out} exists and is not a folder")
 
-    from ._data import load_curve, parse_units
-
-    if args.units is not None:
-        try:
-            parse_units(args.units)
-        except ValueError as exc:
-            return _error(f"--units: {exc}")
-    curves = []
-    for f in args.files:
-        p = pathlib.Path(f)
-        if not p.is_file():
-            return _error(f"FILE {f}: no such file")
-        try:
-            if p.suffix.lower() in (".csv", ".tsv", ".txt", ".dat"):
-                curves += load_curve(p, units=args.units)
-            else:
-                curves += load_curve(p)
-        except (ValueError, ImportError, OSError) as exc:
-            return _error(f"FILE {f}: {exc}")
+    try:
+        curves = load_inputs(args)
+    except ValueError as exc:
+        return _error(str(exc))
 
     _enable_cache()
     from ._optimise import fit
@@ -113,7 +148,8 @@ def run_fit(args: argparse.Namespace) -> int:
     try:
         result = fit(curves, radius=args.radius, model=args.model, rheology=args.rheology,
                      spring_constant=args.spring_constant, n_starts=args.starts,
-                     max_samples=args.max_samples, progress=not args.quiet)
+                     max_samples=args.max_samples, cells=cells,
+                     progress=not args.quiet)
     except ValueError as exc:
         return _error(str(exc))
     parent = out.resolve().parent

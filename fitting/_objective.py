@@ -51,12 +51,31 @@ information about where the jump is. Two devices remove this:
    indentation (model ``jumpoff_displacement``
    against the midpoint of the last attached and first detached data samples, with
    $\sigma_d$ = 1 % of the indentation range or one sampling step, whichever is larger).
-   Both are smooth in the parameters. The jump-off residual is switched off for curves
-   in which no detachment is found, and set to 0 when the model does not detach.
+   Both are smooth in the parameters. The jump-off residual is set to 0 when the model
+   does not detach.
+3. **Curves that do not detach.** When no detachment is found in a curve but its last
+   sample is still loaded ($|F| > 3\sigma$: the lift stopped in contact), the data say
+   only that the contact held at least down to the last indentation $d_\mathrm{end}$.
+   The jump-off residual is then one-sided, $\max(d^*(\theta) - d_\mathrm{end}, 0)/
+   \sigma_d$: it penalises a model that detaches earlier (deeper) than the data, so the
+   ramp cannot hide the last samples by an early model jump-off, and is 0 otherwise. Curves
+   that end unloaded without a visible jump (no adhesion) carry no jump-off residual.
 
-Under ``CompliantLoading`` the forward model resolves the jump-off only to the sampling;
-the ramp and the jump-off residual are then piecewise constant in $t^*$ (documented
-limitation; the pull-off residual and the force samples still carry the information).
+Compliant loading
+-----------------
+Under ``CompliantLoading`` the tip jumps to the free branch at the jump-off ($d = z$), so
+the first detached indentation sample says nothing about where the contact was lost. The
+jump-off is then located by the drive position $z = d + F/k$, in the model
+$z^* = d^* + F^*/k$ (``jumpoff_displacement``, ``jumpoff_force``; refined inside the step
+by the forward model), in the data the fold of the measured equilibrium branch: the vertex
+of the parabola $z(F)$ through the last three attached samples (the branch ends where
+$\mathrm dz/\mathrm dF = 0$, $\mathrm dF/\mathrm dd = -k$), which also refines the
+pull-off force beyond the last attached sample. Where that vertex is not usable (not a
+minimum of $z$, or outside the last drive step; e.g. a pinned contact that reaches the
+detachment criterion) the midpoint of the drive step is used, with the force extrapolated
+to it along the last attached step. The jump-off is then known to the drive step only, and
+so is $\Delta\gamma$ when the contact stays pinned until it jumps (the force in contact
+does not depend on $\Delta\gamma$ there).
 """
 
 from __future__ import annotations
@@ -211,9 +230,10 @@ class CurveBatch(eqx.Module):
     depth: Float[Array, " C"]
     pull_force: Float[Array, " C"]
     pull_sigma: Float[Array, " C"]
-    jump_disp: Float[Array, " C"]
+    jump_disp: Float[Array, " C"]  # jump-off indentation (drive position if compliant)
     jump_sigma: Float[Array, " C"]
-    has_jump: Float[Array, " C"]
+    has_jump: Float[Array, " C"]  # 1: detachment found in the data
+    attached_end: Float[Array, " C"]  # 1: no detachment, still loaded at the last sample
     stiffness: Float[Array, " C"]
     profile: jc.AbstractProfile
 
@@ -250,6 +270,49 @@ def _detachment(t, d, f, sigma):
     # change of force over one sampling step
     res = abs(float(f[i_min] - f[i_min - 1])) if (i_min == j - 1 and i_min > 0) else 0.0
     return _refined_min(t, f, i_min, j), res, 0.5 * float(d[j - 1] + d[j]), dsig, True
+
+
+def _fold(z3, f3):
+    """Vertex (F*, z*) of the parabola z(F) through three samples, or None if unusable.
+
+    Along the lift the attached branch has F decreasing (more tensile) and z decreasing
+    until the fold, where dz/dF = 0 (z minimal); beyond it no equilibrium remains.
+    """
+    f0, f1, f2 = (float(x) for x in f3)
+    z0, z1, z2 = (float(x) for x in z3)
+    if not (f0 > f1 > f2):
+        return None
+    b = (z1 - z2) / (f1 - f2)
+    c = ((z0 - z2) / (f0 - f2) - b) / (f0 - f1)
+    if not c > 0:
+        return None
+    fv = 0.5 * (f1 + f2) - b / (2.0 * c)
+    if not (f2 - 3.0 * (f0 - f2) <= fv <= f2):
+        return None
+    zv = z2 + b * (fv - f2) + c * (fv - f2) * (fv - f1)
+    return fv, zv
+
+
+def _detachment_compliant(t, z, f, sigma):
+    """`_detachment` for compliant loading: the jump-off by the drive position `z`."""
+    fpull, fres, _, _, found = _detachment(t, z, f, sigma)
+    zstep = float(np.max(np.abs(np.diff(z)))) if z.size > 1 else 0.0
+    zsig = max(0.01 * float(np.ptp(z)) if z.size > 1 else 0.0, zstep, 1e-15)
+    if not found:
+        return fpull, fres, float(z[-1]), zsig, False
+    i_min = int(np.argmin(f))
+    j = i_min + int(np.flatnonzero(f[i_min:] > 0.3 * float(f[i_min]))[0])
+    zjump = 0.5 * float(z[j - 1] + z[j])
+    v = _fold(z[j - 3:j], f[j - 3:j]) if j >= 3 else None
+    if v is not None and float(z[j]) <= v[1] <= float(z[j - 1]):
+        fpull, zjump = min(fpull, v[0]), v[1]
+    elif j >= 2 and z[j - 2] != z[j - 1]:
+        # no fold (e.g. a pinned contact reaching the criterion): the force at the
+        # midpoint of the drive step, extrapolated along the last attached step
+        slope = float(f[j - 1] - f[j - 2]) / float(z[j - 1] - z[j - 2])
+        if slope > 0:
+            fpull = min(fpull, float(f[j - 1]) + slope * (zjump - float(z[j - 1])))
+    return fpull, fres, zjump, zsig, True
 
 
 def _refined_min(t, f, i, j_detached=None):
@@ -347,7 +410,6 @@ def prepare_curves(
             else np.ones(len(t), dtype=bool)
         noise = c.contact.noise if c.contact is not None else None
         sigma = _noise(f[ret], noise)
-        fpull, fres, djump, dsig, found = _detachment(t[ret], d[ret], f[ret], sigma)
         if spec.model == "relaxed":
             depth = float(d[0])
             if depth <= 0:
@@ -357,12 +419,19 @@ def prepare_curves(
         else:
             depth = float(np.max(d))
             drive = d + f / k if spec.compliant else d
+        if spec.compliant:
+            fpull, fres, djump, dsig, found = _detachment_compliant(
+                t[ret], drive[ret], f[ret], sigma)
+        else:
+            fpull, fres, djump, dsig, found = _detachment(t[ret], d[ret], f[ret], sigma)
+        attached_end = (not found) and abs(float(f[-1])) > 3.0 * sigma
         dt = np.diff(t[ret]) if ret.sum() > 1 else np.array([1.0])
         rows.append(dict(
             ts=t, drive=drive, indentation=d, force=f, sigma=sigma,
             ramp_width=2.0 * float(np.median(dt)), depth=depth, pull_force=fpull,
             pull_sigma=math.hypot(sigma, fres),
             jump_disp=djump, jump_sigma=dsig, has_jump=float(found),
+            attached_end=float(attached_end),
             stiffness=float(k) if spec.compliant else 1.0,
         ))
     n_max = max(len(r["ts"]) for r in rows)
@@ -377,7 +446,7 @@ def prepare_curves(
                       for r in rows])
     scal = {key: np.array([r[key] for r in rows], dtype=float)
             for key in ("sigma", "ramp_width", "depth", "pull_force", "pull_sigma", "jump_disp",
-                        "jump_sigma", "has_jump", "stiffness")}
+                        "jump_sigma", "has_jump", "attached_end", "stiffness")}
     return CurveBatch(**{k: jnp.asarray(v) for k, v in stack.items()},
                       valid=jnp.asarray(valid), **{k: jnp.asarray(v) for k, v in scal.items()},
                       profile=profile)
@@ -417,7 +486,8 @@ def residuals_natural(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec
     """Weighted residual vector for natural parameters `p` (length `C*n + 2*C`).
 
     Order: the force residuals of every curve (curve-major), then per curve the pull-off
-    residual and the jump-off residual. See the module docstring for the jump-off ramp.
+    residual and the jump-off residual (one-sided for a curve that ends attached). See the
+    module docstring for the jump-off ramp.
     """
     sol = predict(spec, p, data)
     t_jump = jnp.where(jnp.isfinite(sol.jumpoff_time), sol.jumpoff_time, jnp.inf)
@@ -425,9 +495,12 @@ def residuals_natural(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec
     force = jnp.where(jnp.isfinite(sol.force), sol.force, 0.0)
     r_force = data.valid * ramp * (force - data.force) / data.sigma[:, None]
     r_pull = (sol.max_tensile_force - data.pull_force) / data.pull_sigma
-    model_jumped = jnp.isfinite(sol.jumpoff_displacement)
-    jd = jnp.where(model_jumped, sol.jumpoff_displacement, data.jump_disp)
-    r_jump = data.has_jump * (jd - data.jump_disp) / data.jump_sigma
+    jump = sol.jumpoff_displacement
+    if spec.compliant:  # the drive position at the jump-off
+        jump = jump + sol.jumpoff_force / data.stiffness
+    jd = jnp.where(jnp.isfinite(jump), jump, data.jump_disp)
+    r_jump = (data.has_jump * (jd - data.jump_disp)
+              + data.attached_end * jnp.maximum(jd - data.jump_disp, 0.0)) / data.jump_sigma
     r = jnp.concatenate([r_force.ravel(), r_pull, r_jump])
     return jnp.where(jnp.isfinite(r), r, 1e6)
 

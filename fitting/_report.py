@@ -2,9 +2,13 @@
 
 ``parameters.json``: ``{"<name>_<unit>": {"value": v, "stderr": s, "fixed": bool}, ...,
 "r_squared": R², "reduced_chi2": χ²_red, "chi2": χ², "n_data": m, "n_free": k,
-"converged": bool, "model": ..., "rheology": ..., "radius_m": R, "correlation":
-{"names": [...], "matrix": [[...]]}, "warnings": [...], "timings_s": {...},
-"curves": [sources]}``. Standard-model fits also carry the derived ``G_inf_Pa`` and
+"converged": bool, "model": ..., "rheology": ..., "radius_m": R, "loading":
+{"type": "displacement" | "compliant", "spring_constant_N_m": [k per curve] | null},
+"correlation": {"names": [...], "matrix": [[...]]}, "warnings": [...], "timings_s": {...},
+"curves": [sources], "inputs": [{"source", "segments", "samples", "duration_s",
+"spring_constant_N_m"}, ...]}`` (``inputs``: each curve as loaded, its segments and the
+cantilever spring constant it carries, from the instrument file or the loader; ``null``
+if none). Standard-model fits also carry the derived ``G_inf_Pa`` and
 ``tau_s`` (values only). ``parameters.csv``: one row per parameter with the columns
 ``parameter,unit,value,stderr,relative_stderr,fixed``.
 """
@@ -43,13 +47,32 @@ def result_table(result) -> dict:
         rheology=(result.spec.rheology if result.spec.rheology == "standard"
                   else f"prony:{result.spec.arms}"),
         radius_m=result.radius,
+        loading=_loading(result),
         correlation={"names": list(result.columns),
                      "matrix": [[_num(x) for x in row] for row in result.correlation]},
         warnings=list(result.warnings),
         timings_s={k: float(v) for k, v in result.timings.items()},
         curves=[getattr(c, "source", "") for c in result.curves],
+        inputs=[_input_info(c) for c in result.curves],
     )
     return out
+
+
+def _loading(result) -> dict:
+    if not result.spec.compliant:
+        return {"type": "displacement", "spring_constant_N_m": None}
+    return {"type": "compliant",
+            "spring_constant_N_m": [float(k) for k in np.asarray(result.data.stiffness)]}
+
+
+def _input_info(curve) -> dict:
+    k = getattr(curve, "spring_constant", None)
+    time = np.asarray(curve.time)
+    return {"source": getattr(curve, "source", ""),
+            "segments": list(curve.segment_names),
+            "samples": len(time),
+            "duration_s": float(time[-1] - time[0]),
+            "spring_constant_N_m": None if k is None else float(k)}
 
 
 def _write_figure(result, path: pathlib.Path) -> None:

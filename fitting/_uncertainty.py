@@ -15,6 +15,14 @@ J_\mathrm{rel}$ has a condition number above `max_condition` (default $10^{10}$)
 parameter that dominates the eigenvector of the smallest eigenvalue (the direction the
 data cannot see). Typical case: $\eta_1$ when the lift is much slower than the relaxation
 (the material is relaxed throughout and only $G_\infty$ matters).
+
+A free work of adhesion with no detaching curve is reported the same way, with an infinite
+standard error (:func:`detachment_message`): the data then bound $\Delta\gamma$ only from
+below, and the optimum sits on or above that bound, where the local standard error (often
+small) means nothing.
+
+Profile likelihoods (:func:`profile_likelihood`) refit all other free parameters with one
+parameter fixed at each of several values, all values in one compiled, `vmap`-ed call.
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ import numpy as np
 
 from ._objective import CurveBatch, ModelSpec, residuals
 
-__all__ = ["IdentifiabilityWarning", "gauss_newton", "profile_likelihood"]
+__all__ = ["IdentifiabilityWarning", "detachment_message", "gauss_newton", "profile_likelihood"]
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -38,6 +46,25 @@ class IdentifiabilityWarning(UserWarning):
 def _n_data(data: CurveBatch) -> int:
     return int(np.sum(np.asarray(data.valid) > 0) + data.n_curves
                + np.sum(np.asarray(data.has_jump)))
+
+
+def detachment_message(data: CurveBatch, names, free) -> str | None:
+    """The identifiability message when the work of adhesion is free but no curve detaches.
+
+    Without a jump-off in the data the work of adhesion is bounded only from below (the
+    contact held at least until the end of the lift): the least-squares optimum sits on or
+    above that bound, and the local (Gauss–Newton) standard error means nothing. `None`
+    when the work of adhesion is fixed or some curve detaches.
+    """
+    names = list(names)
+    if "work_of_adhesion" not in names or names.index("work_of_adhesion") not in free:
+        return None
+    if np.any(np.asarray(data.has_jump) > 0):
+        return None
+    return ("work_of_adhesion is not determined by the data: no curve detaches (the force "
+            "never jumps back to zero after its most tensile value), so the data bound it "
+            "only from below; lift until the contact jumps off, or fix it "
+            "(fixed={'work_of_adhesion': value})")
 
 
 @eqx.filter_jit
@@ -55,13 +82,28 @@ def _jacobian(spec, free, theta, data):
 
 def gauss_newton(spec: ModelSpec, p, data: CurveBatch, free, names, *,
                  max_relative_error: float = 0.5, max_condition: float = 1e10,
-                 warn: bool = True) -> dict:
-    """Gauss–Newton covariance at natural parameters `p` for the `free` indices."""
+                 warn: bool = True, jacobian=None) -> dict:
+    """Gauss–Newton covariance at natural parameters `p` for the `free` indices.
+
+    `jacobian`: optionally `(r, J)`, the residuals at `p` and their Jacobian with respect
+    to the log of the free parameters (e.g. from the optimiser's last step); computed
+    here (forward mode) when `None`.
+    """
     p = np.asarray(p, dtype=float)
     free = list(free)
-    r, jac = _jacobian(spec, tuple(free), jnp.log(jnp.asarray(p)), data)
+    if jacobian is None:
+        r, jac = _jacobian(spec, tuple(free), jnp.log(jnp.asarray(p)), data)
+    else:
+        r, jac = jacobian
+        if np.shape(jac) != (np.size(r), len(free)):
+            raise ValueError(f"jacobian: J must have shape ({np.size(r)}, {len(free)}); "
+                             f"got {np.shape(jac)}")
     r = np.asarray(r)
-    J = np.asarray(jac)
+    J = np.array(jac)
+    # a derivative that is not finite (the model fails next to the optimum) carries no
+    # information: that parameter is reported as undetermined, the others stay usable
+    bad = ~np.all(np.isfinite(J), axis=0)
+    J[:, bad] = 0.0
     n_data = _n_data(data)
     dof = max(n_data - len(free), 1)
     chi2 = float(np.sum(r * r))
@@ -74,21 +116,34 @@ def gauss_newton(spec: ModelSpec, p, data: CurveBatch, free, names, *,
     inv = (V / np.where(w > tiny, w, np.inf)) @ V.T
     cov_rel = s2 * inv
     pf = p[free]
-    cov_free = cov_rel * np.outer(pf, pf)
+    var_rel = np.diag(cov_rel)
+    # relative standard errors (of log p); 0 variance: a direction the data cannot see
+    rel = np.where(var_rel > 0, np.sqrt(np.maximum(var_rel, 0.0)), np.inf)
     k = len(p)
     cov = np.full((k, k), np.nan)
-    cov[np.ix_(free, free)] = cov_free
     stderr = np.full(k, np.nan)
-    stderr[free] = np.sqrt(np.maximum(np.diag(cov_free), 0.0))
-    stderr[free] = np.where(np.diag(cov_rel) > 0, stderr[free], np.inf)
+    with np.errstate(over="ignore", invalid="ignore"):  # a runaway parameter gives inf
+        cov[np.ix_(free, free)] = cov_rel * np.outer(pf, pf)
+        stderr[free] = pf * rel
     corr = np.full((k, k), np.nan)
-    d = np.sqrt(np.maximum(np.diag(cov_rel), 1e-300))
+    d = np.sqrt(np.maximum(var_rel, 1e-300))
     corr[np.ix_(free, free)] = np.clip(cov_rel / np.outer(d, d), -1.0, 1.0)
 
     messages = []
-    rel = stderr[free] / pf
+    no_jump = detachment_message(data, names, free)
+    if no_jump is not None:
+        # a lower bound only: no standard error
+        j = names.index("work_of_adhesion")
+        stderr[j] = np.inf
+        cov[j, :] = cov[:, j] = np.nan
+        messages.append(no_jump)
     for i, j in enumerate(free):
-        if not np.isfinite(rel[i]) or rel[i] > max_relative_error:
+        if no_jump is not None and names[j] == "work_of_adhesion":
+            continue
+        if bad[i]:
+            messages.append(f"{names[j]} is not determined by the data: the derivative of the "
+                            "residuals with respect to it is not finite at the optimum")
+        elif not np.isfinite(rel[i]) or rel[i] > max_relative_error:
             messages.append(
                 f"{names[j]} is not determined by the data: relative standard error "
                 f"{rel[i]:.3g} (> {max_relative_error:g})"
@@ -108,31 +163,89 @@ def gauss_newton(spec: ModelSpec, p, data: CurveBatch, free, names, *,
                 chi2=chi2, n_data=n_data, condition_number=cond, warnings=messages)
 
 
+@eqx.filter_jit
+def _profile_solve(spec, param, data, references, z0, max_steps):
+    """One compiled solve for all profile values: `vmap` over the references.
+
+    The profiled parameter is fixed, so it lives only in `param.reference`, an array
+    (data, not a static field): the trace, and the compilation, serve every value.
+    """
+    from ._optimise import solve
+
+    def one(ref):
+        z, chi2, ok, steps = solve(spec, eqx.tree_at(lambda q: q.reference, param, ref), data,
+                                   z0[None], max_steps=max_steps)
+        return z[0], chi2[0], ok[0], steps[0]
+
+    return jax.vmap(one)(references)
+
+
+@eqx.filter_jit
+def _chi2_batch(spec, data, thetas):
+    return jax.vmap(lambda th: jnp.sum(residuals(th, data, spec) ** 2))(thetas)
+
+
 def profile_likelihood(result, name: str, values, *, max_steps: int = 200) -> dict:
     r"""Profile $\chi^2$ of one parameter: refit the others with it fixed at each value.
 
-    All values are refitted in one vmapped call, each started from the optimum.
+    All values are refitted in one compiled call (`vmap` over the values; the fixed value
+    enters as data, so one compilation serves any values of the same count), each started
+    from the optimum of `result`. Parameters fixed in `result` stay fixed, bounds of the
+    fit are kept.
 
-    **Returns:** `{"values": ..., "chi2": ..., "delta_chi2": ..., "others": (len, p)}` where
-    $\Delta\chi^2 = \chi^2 - \chi^2_\min$ (about 1 at one standard error for a well-
-    determined parameter, with the data weights scaled to reduced $\chi^2 = 1$, i.e.
-    divide by `result.reduced_chi2`).
+    **Arguments:** `result` (a :class:`fitting.FitResult`), `name` (a parameter, short
+    ``"eta1"`` or with its unit ``"eta1_Pa_s"``), `values` (natural units, finite and > 0),
+    `max_steps` (Levenberg–Marquardt steps per value).
+
+    **Returns:** `{"values": (k,), "chi2": (k,), "delta_chi2": (k,), "others": (k, p),
+    "converged": (k,)}` where $\Delta\chi^2 = \chi^2 - \chi^2_\min$ and `others` holds
+    all parameters (natural units, the profiled one at its value). For a well-determined
+    parameter $\Delta\chi^2/\chi^2_\mathrm{red} \approx (\delta/\sigma)^2$ near the
+    optimum, with $\sigma$ the Gauss–Newton standard error (about 1 at one standard
+    error; divide by `result.reduced_chi2` to scale the data weights to
+    $\chi^2_\mathrm{red} = 1$).
     """
-    from ._optimise import _short, make_parameterisation, solve
+    from ._objective import Parameterisation
+    from ._optimise import _short
 
-    names = result.names
-    n = _short(name, names)
+    names = list(result.names)
+    try:
+        j = names.index(_short(name, names))
+    except KeyError as exc:
+        raise ValueError(f"name: {exc.args[0]}") from None
     values = np.atleast_1d(np.asarray(values, dtype=float))
-    ref = result.as_dict()
-    fixed = {m: ref[m] for m, f in zip(names, result.fixed, strict=True) if f}
-
-    def one(v):
-        param = make_parameterisation(names, ref, {**fixed, n: float(v)}, None)
-        z0 = jnp.asarray(param.z_of(np.asarray(param.reference)))[None]
-        z, chi2, _, _ = solve(result.spec, param, result.data, z0, max_steps=max_steps)
-        return float(chi2[0]), np.exp(np.asarray(param.theta(z[0])))
-
-    out = [one(v) for v in values]
-    chi2 = np.array([c for c, _ in out])
-    return dict(values=values, chi2=chi2, delta_chi2=chi2 - result.chi2,
-                others=np.stack([o for _, o in out]))
+    if values.ndim != 1 or values.size == 0:
+        raise ValueError(f"values must be a non-empty 1-D array; got shape {values.shape}")
+    if not np.all(np.isfinite(values) & (values > 0)):
+        bad = values[~(np.isfinite(values) & (values > 0))][0]
+        raise ValueError(f"values of {names[j]!r} must be finite and > 0; got {bad!r}")
+    theta_hat = np.log(np.asarray(result.values, dtype=float))
+    references = np.repeat(theta_hat[None], values.size, axis=0)
+    references[:, j] = np.log(values)
+    fit_param = result.parameterisation
+    fit_free = tuple(fit_param.free) if fit_param is not None else tuple(
+        i for i, f in enumerate(result.fixed) if not f)
+    free = tuple(i for i in fit_free if i != j)
+    if not free:
+        chi2 = np.asarray(_chi2_batch(result.spec, result.data, jnp.asarray(references)))
+        others = np.exp(references)
+        converged = np.ones(values.size, dtype=bool)
+    else:
+        k = len(names)
+        lower = (np.asarray(fit_param.lower) if fit_param is not None
+                 else np.full(k, -np.inf))
+        upper = (np.asarray(fit_param.upper) if fit_param is not None
+                 else np.full(k, np.inf))
+        param = Parameterisation(free=free, reference=jnp.asarray(theta_hat),
+                                 lower=jnp.asarray(lower), upper=jnp.asarray(upper))
+        # the free entries of every start are those of the optimum: z0 is common
+        z0 = jnp.asarray(param.z_of(theta_hat))
+        z, chi2, ok, _ = _profile_solve(result.spec, param, result.data,
+                                        jnp.asarray(references), z0, int(max_steps))
+        thetas = jax.vmap(lambda ref, zz: eqx.tree_at(lambda q: q.reference, param, ref)
+                          .theta(zz))(jnp.asarray(references), z)
+        others = np.exp(np.asarray(thetas))
+        chi2 = np.asarray(chi2)
+        converged = np.asarray(ok)
+    return dict(values=values, chi2=chi2, delta_chi2=chi2 - result.chi2, others=others,
+                converged=converged)

@@ -160,8 +160,18 @@ def _parabola_stable_radius(m, c, R):
     # D = u^2 + mu/3 + v^2 > 0. With rs = D^(-1/2): sqrt(2 y) = rs / 2, 2 / sqrt(2 y) = 4 D rs.
     # Multiplications, one cube-root reciprocal and square roots only, so that XLA fuses the
     # whole chain into one pass.
-    disc = jnp.maximum(1.0 / 256.0 + mu**3 / 27.0, 0.0)
-    z = 1.0 / 16.0 + jnp.sqrt(disc)
+    # sqrt(disc) = sqrt(1/256 + mu^3/27); for mu > 1 as q sqrt(1 + 27/(256 mu^3)) with
+    # q = mu^(3/2)/sqrt(27) and t = mu^(-1/2), so that mu^3 cannot overflow (float32: mu is
+    # up to (a/a_fold)^2, 1e12 and more for weak adhesion)
+    t = jax.lax.rsqrt(jnp.maximum(mu, 1.0))
+    q = mu * (mu * t) * float(1.0 / np.sqrt(27.0))
+    t3 = t * t * t
+    sqrt_disc = jnp.where(
+        mu > 1.0,
+        q * jnp.sqrt(1.0 + (27.0 / 256.0) * (t3 * t3)),
+        jnp.sqrt(jnp.maximum(1.0 / 256.0 + jnp.minimum(mu, 1.0) ** 3 / 27.0, 0.0)),
+    )
+    z = 1.0 / 16.0 + sqrt_disc
     r = _rcbrt_positive(z)
     u = z * r * r
     v = mu * r * (-1.0 / 3.0)

@@ -198,16 +198,22 @@ def test_reciprocal_cube_root_against_numpy(dtype, ulps):
     assert np.max(np.abs(got / exact - 1)) < ulps * np.finfo(dtype).eps
 
 
-def test_parabola_front_root_solves_the_quartic():
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_parabola_front_root_solves_the_quartic(dtype):
     # a^2/R - c sqrt(a) = m on the stable branch, from the fold to deep compression (weak
-    # adhesion: a / a_fold up to 1e9, where Cardano's u + v cancels if written naively)
+    # adhesion: a / a_fold up to 1e9, where Cardano's u + v cancels if written naively and
+    # mu^3 overflows float32)
     from jaxcontact._elastic import _parabola_stable_radius
 
     R, c = 1e-4, 3e-5
     a_fold = (c * R / 4) ** (2 / 3)
     a = a_fold * np.concatenate([1 + np.logspace(-6, 0, 50), np.logspace(0.3, 9, 60)])
     m = a**2 / R - c * np.sqrt(a)
-    got = np.asarray(_parabola_stable_radius(jnp.asarray(m), c, R))
+    args = (jnp.asarray(m, dtype), jnp.asarray(c, dtype), jnp.asarray(R, dtype))
+    got = np.asarray(jax.jit(_parabola_stable_radius)(*args))
+    assert got.dtype == dtype  # no silent promotion
+    got = got.astype(np.float64)
     # near the fold the root is ill-conditioned (double root): sqrt(eps) behaviour
-    tol = np.where(a < 1.01 * a_fold, 1e-7, 1e-13)
+    eps = np.finfo(dtype).eps
+    tol = np.where(a < 1.01 * a_fold, 10 * np.sqrt(eps), 500 * eps)
     assert np.all(np.abs(got / a - 1) < tol), np.max(np.abs(got / a - 1) / tol)

@@ -28,7 +28,9 @@ of each contender per round, and the medians are compared):
    one), one plain `vmap` over all sets (every lane runs until the slowest set stops), and
    a Python loop over the jitted `solve` (LM and L-BFGS).
 
-    python benchmarks/bench_fit.py [--samples 200] [--repeats 7] [--batch 100] [--workers 4]
+    python benchmarks/bench_fit.py [--samples 200] [--repeats 7] [--batch 100] [--workers 8]
+
+Run time about 1.5–2 min on 2 CPU cores (mostly compilation and the scipy fits).
 """
 
 from __future__ import annotations
@@ -283,7 +285,7 @@ def main():
     ap.add_argument("--samples", type=int, default=200, help="samples per curve")
     ap.add_argument("--repeats", type=int, default=7, help="rounds of the warm timings")
     ap.add_argument("--batch", type=int, default=100, help="independent curve sets")
-    ap.add_argument("--workers", type=int, default=4,
+    ap.add_argument("--workers", type=int, default=8,
                     help="lanes of the pooled batch solve (solve_batch)")
     ap.add_argument("--noise", type=float, default=0.01, help="noise, fraction of the range")
     args = ap.parse_args()

@@ -51,7 +51,14 @@ Starts and batches: a `vmap`-ed `while_loop` runs until its slowest lane stops. 
 independent problems (:func:`solve_batch`) the lanes are therefore scheduled as a pool:
 `workers` lanes iterate, and a lane whose problem has stopped takes the next one from the
 queue in the same compiled loop, so the cost is the sum of the steps, not
-(number of problems) × (largest step count).
+(number of problems) × (largest step count). Measured for the 100 sets above (LM; 2 shared
+CPU cores; medians): pool of 8 lanes 0.33 s, 4 lanes 0.40 s, 2 lanes 0.53 s, one plain
+`vmap` over all 100 sets 0.81 s (every lane runs the 92 steps of the slowest set), a Python
+loop over the jitted single-problem `solve` 0.58–0.61 s; 100 sequential scipy fits 5.1 s.
+On a CPU the lanes buy little vectorisation (the per-lane cost of a Jacobian is almost that
+of one problem alone), so few lanes and no waiting is what counts. L-BFGS batches poorly
+(the zoom line search is a nested `while_loop` whose lanes wait for each other): its pool
+of 8 lanes was slower than a Python loop over problems.
 """
 
 from __future__ import annotations

@@ -33,3 +33,6 @@ from ._optimise import fit as fit  # noqa: E402
 from ._report import write_report as write_report  # noqa: E402
 from ._uncertainty import IdentifiabilityWarning as IdentifiabilityWarning  # noqa: E402
 from ._uncertainty import profile_likelihood as profile_likelihood  # noqa: E402
+from ._optimise import OPTIMISERS as OPTIMISERS  # noqa: E402
+from ._optimise import solve as solve  # noqa: E402
+from ._optimise import solve_batch as solve_batch  # noqa: E402

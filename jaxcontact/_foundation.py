@@ -738,10 +738,7 @@ class _Model:
         S0, S1 = Gs[jl], Gs[j]
         S2 = jnp.where(right_is_node, Gs[jr], Gs_front)
         ok = (j >= 1) & (z2 > z1) & (z1 > z0)
-        h0 = jnp.where(ok, z1 - z0, 1.0)
-        h1 = jnp.where(ok, z2 - z1, 1.0)
-        b1 = (S1 - S0) / h0
-        c2 = ((S2 - S1) / h1 - b1) / (h0 + h1)
+        b1, c2 = _quadratic_through(z0, z1, z2, S0, S1, S2, ok)
 
         def R(x):
             z = self.geo.zeta(x)
@@ -935,10 +932,7 @@ class _Model:
         S0, S1 = S_nodes[j0], S_nodes[j1]
         S2 = jnp.where(short, S_nodes[c], S_up)
         ok = (i0 >= 0) & (z2 > z1) & (z1 > z0)
-        h0 = jnp.where(ok, z1 - z0, 1.0)
-        h1 = jnp.where(ok, z2 - z1, 1.0)
-        b1 = (S1 - S0) / h0
-        c2 = ((S2 - S1) / h1 - b1) / (h0 + h1)
+        b1, c2 = _quadratic_through(z0, z1, z2, S0, S1, S2, ok)
         dzeta = jax.grad(self.geo.zeta)
 
         def slope(x):
@@ -1037,6 +1031,17 @@ class _Model:
         )
         best = at(x_best)
         return jnp.where(recedes, best, jnp.inf)
+
+
+def _quadratic_through(z0, z1, z2, S0, S1, S2, ok):
+    r"""Newton form $S(z) = S_0 + b_1 (z - z_0) + c_2 (z - z_0)(z - z_1)$ of the quadratic
+    through three points; returns $(b_1, c_2)$. `ok` marks lanes with $z_0 < z_1 < z_2$
+    (elsewhere the spacings are replaced by 1, so that nothing divides by zero)."""
+    h0 = jnp.where(ok, z1 - z0, 1.0)
+    h1 = jnp.where(ok, z2 - z1, 1.0)
+    b1 = (S1 - S0) / h0
+    return b1, ((S2 - S1) / h1 - b1) / (h0 + h1)
+
 
 # --------------------------------------------------------------------------------------
 # Grid

@@ -10,7 +10,6 @@ Compilation dominates the run time: curves of one family share their shapes (and
 compiled fit) between the API and the command-line tests.
 """
 
-import argparse
 import csv
 import json
 import logging
@@ -19,33 +18,18 @@ import pathlib
 import jax
 import numpy as np
 import pytest
+from test_fitting import D0, TRUE, R, _args, _curves
 
 import fitting
 import jaxcontact as jc
 from fitting._cli import load_inputs
 
 DATA = pathlib.Path(__file__).parent / "data"
-R = 10e-6
-D0 = 1e-6
-TRUE = {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 5e-3}
 
 
 def _relaxed_curves(lift, noise=0.0, seed=0, speeds=(1e-6, 4e-6), n=60, p=TRUE):
-    rng = np.random.default_rng(seed)
-    out = []
-    for v in speeds:
-        ts = np.linspace(0.0, lift / v, n)
-        sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
-                         work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=v)
-        f = np.asarray(sol.force)
-        f = f + noise * np.ptp(f) * rng.standard_normal(n)
-        out.append(fitting.Curve(time=ts, displacement=np.asarray(sol.displacement), force=f,
-                                 segment=np.zeros(n, int), segment_names=("retract",)))
-    return out
-
-
-def _args(argv):
-    return fitting.add_fit_arguments(argparse.ArgumentParser()).parse_args(argv)
+    # the synthetic relaxed-model curves of tests/test_fitting.py
+    return _curves(noise=noise, seed=seed, speeds=speeds, lift=lift, p=p, n=n)
 
 
 def _write_csv(path, curve, segments=False):

@@ -28,11 +28,11 @@ from ._objective import initial_guess as initial_guess  # noqa: E402
 from ._objective import make_spec as make_spec  # noqa: E402
 from ._objective import prepare_curves as prepare_curves  # noqa: E402
 from ._objective import residuals as residuals  # noqa: E402
+from ._optimise import OPTIMISERS as OPTIMISERS  # noqa: E402
 from ._optimise import FitResult as FitResult  # noqa: E402
 from ._optimise import fit as fit  # noqa: E402
+from ._optimise import solve as solve  # noqa: E402
+from ._optimise import solve_batch as solve_batch  # noqa: E402
 from ._report import write_report as write_report  # noqa: E402
 from ._uncertainty import IdentifiabilityWarning as IdentifiabilityWarning  # noqa: E402
 from ._uncertainty import profile_likelihood as profile_likelihood  # noqa: E402
-from ._optimise import OPTIMISERS as OPTIMISERS  # noqa: E402
-from ._optimise import solve as solve  # noqa: E402
-from ._optimise import solve_batch as solve_batch  # noqa: E402

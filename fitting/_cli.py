@@ -75,16 +75,13 @@ def _enable_cache():
         pass
 
 
-_TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
-
-
 def load_inputs(args: argparse.Namespace) -> list:
     """The curves of ``args.files`` (CSV with ``--units``; instrument files with the
     spring constant of the file, or ``--spring-constant`` when given).
 
     Raises `ValueError` naming the option or the file.
     """
-    from ._data import load_curve, parse_units
+    from ._data import _TABLE_SUFFIXES, load_curve, parse_units
 
     if args.units is not None:
         try:

@@ -91,6 +91,7 @@ from ._objective import (
     prepare_curves,
     residuals,
 )
+from ._uncertainty import _jacobian
 
 __all__ = ["FitResult", "OPTIMISERS", "fit", "solve", "solve_batch", "start_points",
            "make_parameterisation"]
@@ -499,8 +500,6 @@ def _run_pool(method: _Method, z0s, ctxs, workers: int):
     return jax.lax.while_loop(lambda c: c[4] < n_tasks, body, init)[2]
 
 
-
-
 @eqx.filter_jit
 def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
           rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8, max_steps: int = 200,
@@ -556,11 +555,8 @@ def _fit_core(spec, param, data, z0s, optimiser, rtol, atol, gtol, max_steps):
     theta = param.theta(z)
     idx = jnp.asarray(param.free)
 
-    def r_of(log_free):
-        return residuals(theta.at[idx].set(log_free), data, spec)
-
     def fresh():
-        return _jacobian_fn(r_of)(theta[idx])
+        return _jacobian(spec, param.free, theta, data)
 
     if optimiser == "lm":
         # reuse the last accepted Jacobian: d r/d log p = (d r/d z) / (d theta/d z)

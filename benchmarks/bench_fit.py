@@ -53,6 +53,7 @@ import fitting
 import jaxcontact as jc
 from fitting._objective import initial_guess, make_spec, prepare_curves, residuals
 from fitting._optimise import make_parameterisation, solve, solve_batch
+from jaxcontact.cli import tune_xla_cpu
 
 R = 10e-6
 D0 = 1e-6
@@ -288,9 +289,16 @@ def main():
     ap.add_argument("--workers", type=int, default=8,
                     help="lanes of the pooled batch solve (solve_batch)")
     ap.add_argument("--noise", type=float, default=0.01, help="noise, fraction of the range")
+    ap.add_argument("--no-xla-tuning", action="store_true",
+                    help="leave XLA's CPU options at their defaults (the command line applies "
+                         "jaxcontact.cli.XLA_CPU_FLAGS; see jaxcontact.cli.tune_xla_cpu)")
     args = ap.parse_args()
+    if not args.no_xla_tuning:
+        tune_xla_cpu()  # before the first JAX computation starts the backend
 
-    print(f"devices: {jax.devices()}; {os.cpu_count()} CPU(s); load average {load()}")
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    print(f"devices: {jax.devices()}; {cpus} of {os.cpu_count()} CPU(s) usable; "
+          f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}; load average {load()}")
     print(f"data: relaxed model, standard rheology, parabola R = {R:g} m, "
           f"{len(SPEEDS)} speeds x {args.samples} samples, {args.noise:.0%} noise; "
           "one start, same initial guess for both; JAX rtol = 1e-8, scipy default tolerances")

@@ -48,6 +48,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import lax
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import ArrayLike, Float
 
 from ._elastic import (
@@ -118,20 +119,87 @@ def _states_velocity(ts, velocity, ratio, tau):
     return (ratio * velocity * tau) * jnp.expm1(t * (-1.0 / tau))
 
 
+def _combine(left, right):
+    a1, b1 = left
+    a2, b2 = right
+    return a1 * a2, a2 * b1 + b2
+
+
+def _recurrence(alpha, beta):
+    """$w_i = \\alpha_i w_{i-1} + \\beta_i$, $w_{-1} = 0$, along axis 0; `beta` may carry
+    extra trailing axes (several right-hand sides share the products of the alphas)."""
+    extra = beta.ndim - alpha.ndim
+    a = alpha.reshape(alpha.shape + (1,) * extra)
+    return lax.associative_scan(_combine, (a, beta), axis=0)[1]
+
+
+def _dphi(x):
+    r"""$\phi'(x) = (e^{-x} - \phi(x))/x$ without cancellation (series below $x = 0.01$)."""
+    small = x < 0.01
+    xs = jnp.where(small, x, 0.0)
+    series = -1 / 2 + xs * (1 / 3 + xs * (-1 / 8 + xs * (1 / 30 + xs * (-1 / 144 + xs / 840))))
+    xl = jnp.where(small, 1.0, x)
+    return jnp.where(small, series, (jnp.exp(-xl) - _phi(xl)) / xl)
+
+
+def _increments(dt, ddelta, ratio, tau):
+    x = dt / tau
+    return x, jnp.exp(-x), ddelta * _phi(x)
+
+
+@jax.custom_jvp
+def _states_increments(dt, ddelta, ratio, tau):
+    # w = L(alpha) (ratio ddelta phi(x)), x = dt/tau; shapes (n, 1), (n, 1), (N,), (N,)
+    _, alpha, unit = _increments(dt, ddelta, ratio, tau)
+    return _recurrence(alpha, ratio * unit)
+
+
+def _states_increments_jvp(primals, tangents):
+    r"""Tangents of the arm states through two fixed sensitivities.
+
+    With $u = L(\alpha)(\Delta\delta\,\phi(x))$ the states are $w = (G_k/G_g)\,u$, and
+    $v = \partial w/\partial\tau = L(\alpha)\,q$ with
+    $q = x\,[\alpha\,w_{i-1} - (G_k/G_g)\Delta\delta\,\phi'(x)]/\tau$. Both come
+    from one scan that shares the products of the $\alpha$s, so any number of tangent
+    directions (the Jacobian's columns) costs two element-wise products,
+    $\dot w = u\,\dot r + v\,\dot\tau$, and under `jax.linearize` no scan is left in the
+    linear map. Tangents of the sampling (`dt`, `ddelta`: a differentiated displacement
+    history) need their own scan and only run when present.
+    """
+    dt, ddelta, ratio, tau = primals
+    t_dt, t_ddelta, t_ratio, t_tau = tangents
+    x, alpha, unit = _increments(dt, ddelta, ratio, tau)
+    u = _recurrence(alpha, unit)
+    w = ratio * u
+    w_prev = jnp.concatenate([jnp.zeros_like(w[:1]), w[:-1]])
+    dphi = _dphi(x)
+    q = x * (alpha * w_prev - ratio * ddelta * dphi) / tau
+    v = _recurrence(alpha, q)
+    zero = lambda t: isinstance(t, SymbolicZero)  # noqa: E731
+    dw = jnp.zeros_like(w)
+    if not zero(t_ratio):
+        dw = dw + u * t_ratio
+    if not zero(t_tau):
+        dw = dw + v * t_tau
+    if not (zero(t_dt) and zero(t_ddelta)):
+        # dw = L(alpha) (dbeta + dalpha w_prev) for the sampling's own tangents
+        forcing = jnp.zeros_like(w)
+        if not zero(t_ddelta):
+            forcing = forcing + ratio * t_ddelta * _phi(x)
+        if not zero(t_dt):
+            forcing = forcing + (ratio * ddelta * dphi - alpha * w_prev) * (t_dt / tau)
+        dw = dw + _recurrence(alpha, forcing)
+    return w, dw
+
+
+_states_increments.defjvp(_states_increments_jvp, symbolic_zeros=True)
+
+
 def _states_samples(ts, delta, ratio, tau):
     # exact update over each interval, the first sample responding as a step from rest
     dt = jnp.diff(ts, prepend=ts[:1])[:, None]
     ddelta = jnp.diff(delta, prepend=0.0)[:, None]
-    alpha = jnp.exp(-dt / tau)
-    beta = ratio * ddelta * _phi(dt / tau)
-
-    def combine(left, right):
-        a1, b1 = left
-        a2, b2 = right
-        return a1 * a2, a2 * b1 + b2
-
-    _, w = lax.associative_scan(combine, (alpha, beta), axis=0)
-    return w
+    return _states_increments(dt, ddelta, ratio, tau)
 
 
 def _states_diffrax(method, ts, velocity, delta, ratio, tau):

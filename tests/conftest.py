@@ -1,3 +1,11 @@
-import jax
+import os
+
+# The command line's `main` adds XLA CPU options (jaxcontact.cli.tune_xla_cpu) when it runs
+# before the first JAX computation; in a test session that would depend on which test runs
+# first. Tests run XLA's defaults unless the environment says otherwise
+# (test_cli.py::test_tune_xla_cpu checks the tuning in a fresh process).
+os.environ.setdefault("JAXCONTACT_XLA_TUNING", "0")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)

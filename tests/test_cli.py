@@ -1,5 +1,6 @@
 import csv
 import json
+import os
 
 import numpy as np
 import pytest
@@ -208,3 +209,46 @@ def test_demo_writes_png(tmp_path):
     assert main(["demo", "--out", str(tmp_path)]) == 0
     png = tmp_path / "pulloff.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_tune_xla_cpu():
+    # in a fresh process: the flag is added before the backend starts, not twice, not over a
+    # choice already in XLA_FLAGS, not with JAXCONTACT_XLA_TUNING=0, and results are the same
+    import subprocess
+    import sys
+
+    import jaxlib
+
+    code = (
+        "import os, sys\n"
+        "from jaxcontact.cli import tune_xla_cpu, XLA_CPU_FLAGS\n"
+        "added = tune_xla_cpu()\n"
+        "import jax; jax.config.update('jax_enable_x64', True)\n"
+        "import jaxcontact as jc\n"
+        "sol = jc.retract(jc.StandardModel(1e4, 5e3, 7.5e3), jc.Parabola(1e-5),\n"
+        "                 work_of_adhesion=5e-3, depth=1e-6, ts=[0.0, 0.5, 1.0], velocity=1e-6)\n"
+        "again = tune_xla_cpu()\n"
+        "print(repr(added), repr(again), repr(os.environ.get('XLA_FLAGS', '')),\n"
+        "      repr(float(sol.max_tensile_force)))\n"
+    )
+
+    def run(**env):
+        full = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS",
+                                                                 "JAXCONTACT_XLA_TUNING")}
+        full.update(env)
+        out = subprocess.run([sys.executable, "-c", code], env=full, capture_output=True,
+                             text=True, check=True)
+        return [eval(x) for x in out.stdout.split()]  # noqa: S307 - our own reprs
+
+    known = tuple(int(x) for x in jaxlib.__version__.split(".")[:2]) == (0, 10)
+    added, again, flags, f_tuned = run()
+    from jaxcontact.cli import XLA_CPU_FLAGS
+
+    assert added == (list(XLA_CPU_FLAGS) if known else [])
+    assert again == []  # the backend has started
+    assert all(f in flags for f in added)
+    added, _, flags, f_default = run(JAXCONTACT_XLA_TUNING="0")
+    assert added == [] and flags == ""
+    added, _, flags, _ = run(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
+    assert added == [] and flags == "--xla_cpu_use_fusion_emitters=true"
+    assert f_tuned == pytest.approx(f_default, rel=1e-12)

@@ -282,3 +282,16 @@ def test_oocyte_history_fit():
         res = fitting.fit(curve, radius=40e-6, model="history", n_starts=2, max_samples=100,
                           progress=False)
     assert res.r_squared > 0.8
+
+
+def test_hertz_modulus_parabola_fast_path():
+    # the float-only parabola path of the initial guess against the general (JAX) path for
+    # the same shape written as a power law, and against Hertz: F = (16/3) G sqrt(R) d^1.5
+    from fitting._objective import _hertz_modulus
+
+    force, depth = 3.7e-7, 0.8e-6
+    g_fast, a_fast = _hertz_modulus(force, depth, jc.Parabola(R))
+    g_gen, a_gen = _hertz_modulus(force, depth, jc.PowerLaw(1.0 / (2.0 * R), 2.0))
+    assert a_fast == pytest.approx(a_gen, rel=1e-12)
+    assert g_fast == pytest.approx(g_gen, rel=1e-10)
+    assert g_fast == pytest.approx(force / (16.0 / 3.0 * np.sqrt(R) * depth**1.5), rel=1e-12)

@@ -340,3 +340,53 @@ def test_float32_path_against_float64():
     keep = np.abs(np.asarray(TS) - float(sol64.jumpoff_time)) > 1e-4
     assert err[keep].max() < 1e-5 * scale
     np.testing.assert_allclose(float(sol32.jumpoff_time), float(sol64.jumpoff_time), rtol=1e-4)
+
+
+def test_sampled_arm_states_against_sequential_recurrence():
+    # the arm states of a sampled history (associative scan, custom JVP through two fixed
+    # sensitivities) against the plain sequential recurrence w_i = a_i w_{i-1} + b_i with
+    # JAX's own derivatives: values, parameter tangents (the fitting Jacobian's path) and
+    # tangents of the sampling itself (times and displacements), for relaxation times from
+    # far below to far above the sampling interval (x = dt/tau from 1e-4 to 30)
+    from jaxcontact._pulloff import _states_samples
+
+    rng = np.random.default_rng(3)
+    n = 97
+    ts = jnp.asarray(np.cumsum(rng.uniform(0.5, 1.5, n)) - 0.7)
+    delta = jnp.asarray(np.cumsum(rng.normal(size=n)))
+    ratio = jnp.array([0.2, 0.3, 0.1])
+    tau = jnp.array([0.03, 2.0, 1e4])
+
+    def sequential(ts, delta, ratio, tau):
+        dt = jnp.diff(ts, prepend=ts[:1])[:, None]
+        dd = jnp.diff(delta, prepend=0.0)[:, None]
+        x = dt / tau
+        safe = jnp.where(x > 0, x, 1.0)
+        b = ratio * dd * jnp.where(x > 0, -jnp.expm1(-safe) / safe, 1.0)
+
+        def step(w, ab):
+            w = ab[0] * w + ab[1]
+            return w, w
+
+        return jax.lax.scan(step, jnp.zeros_like(tau), (jnp.exp(-x), b))[1]
+
+    args = (ts, delta, ratio, tau)
+    w, ref = _states_samples(*args), sequential(*args)
+    assert float(jnp.max(jnp.abs(w - ref))) <= 1e-13 * float(jnp.max(jnp.abs(ref)))
+    # parameter tangents only (symbolic zeros for the sampling), then all four
+    zero_ts, zero_d = jnp.zeros_like(ts), jnp.zeros_like(delta)
+    for tangent in [(zero_ts, zero_d, ratio * 0.7, tau * -1.3),
+                    tuple(jnp.asarray(rng.normal(size=np.shape(a))) for a in args)]:
+        if tangent[0] is zero_ts:
+            _, d_w = jax.jvp(lambda r, t: _states_samples(ts, delta, r, t), (ratio, tau),
+                             tangent[2:])
+        else:
+            _, d_w = jax.jvp(_states_samples, args, tangent)
+        _, d_ref = jax.jvp(sequential, args, tangent)
+        assert float(jnp.max(jnp.abs(d_w - d_ref))) <= 1e-12 * float(jnp.max(jnp.abs(d_ref)))
+    # reverse mode (transposed through the same rule) against the sequential recurrence
+    loss = lambda f: lambda r, t: jnp.sum(jnp.sin(f(ts, delta, r, t)))  # noqa: E731
+    g, g_ref = jax.grad(loss(_states_samples), (0, 1))(ratio, tau), jax.grad(
+        loss(sequential), (0, 1))(ratio, tau)
+    for a, b in zip(g, g_ref, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-11)

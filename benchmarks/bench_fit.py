@@ -25,8 +25,16 @@ of each contender per round, and the medians are compared):
 3. `--batch` independent curve sets (different true parameters and noise) against the same
    number of sequential scipy fits: `fitting._optimise.solve_batch` (one compiled call,
    `--workers` lanes scheduled as a pool: a lane whose set has converged takes the next
-   one), one plain `vmap` over all sets (every lane runs until the slowest set stops), and
-   a Python loop over the jitted `solve` (LM and L-BFGS).
+   one) spread over every CPU device and on one device, one plain `vmap` over all sets
+   (every lane runs until the slowest set stops), and a Python loop over the jitted
+   `solve` (LM and L-BFGS).
+
+JAX setup (printed at the start): the XLA CPU option of the command line
+(`jaxcontact.cli.tune_xla_cpu`; `--no-xla-tuning` leaves XLA's defaults) and one JAX CPU
+device per usable core (`--cpu-devices`); single fits run on the first device. scipy and
+numpy run on one core. On a shared machine, pinning the process to one core
+(``taskset -c 0 python benchmarks/bench_fit.py``) gives steadier single-fit timings: XLA
+then keeps its small kernels on one thread.
 
     python benchmarks/bench_fit.py [--samples 200] [--repeats 7] [--batch 100] [--workers 8]
 
@@ -292,12 +300,17 @@ def main():
     ap.add_argument("--no-xla-tuning", action="store_true",
                     help="leave XLA's CPU options at their defaults (the command line applies "
                          "jaxcontact.cli.XLA_CPU_FLAGS; see jaxcontact.cli.tune_xla_cpu)")
+    ap.add_argument("--cpu-devices", type=int, default=None,
+                    help="CPU devices JAX exposes (default: the usable cores); solve_batch "
+                         "spreads the batch over them, single fits use the first")
     args = ap.parse_args()
+    # before the first JAX computation starts the backend:
     if not args.no_xla_tuning:
-        tune_xla_cpu()  # before the first JAX computation starts the backend
+        tune_xla_cpu()
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
+    jax.config.update("jax_num_cpu_devices", args.cpu_devices or usable)
 
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    print(f"devices: {jax.devices()}; {cpus} of {os.cpu_count()} CPU(s) usable; "
+    print(f"devices: {jax.devices()}; {usable} of {os.cpu_count()} CPU(s) usable; "
           f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}; load average {load()}")
     print(f"data: relaxed model, standard rheology, parabola R = {R:g} m, "
           f"{len(SPEEDS)} speeds x {args.samples} samples, {args.noise:.0%} noise; "
@@ -387,9 +400,13 @@ def main():
     z0b = jnp.concatenate([s[2] for s in sets])
     n_rep = max(3, args.repeats // 2)
 
-    def pooled():
+    def pooled():  # spread over every device (the CPU cores, see --cpu-devices)
         return jax.block_until_ready(
             solve_batch(spec, params, datas, z0b, workers=args.workers))
+
+    def pooled_one():  # one device: one core
+        return jax.block_until_ready(solve_batch(spec, params, datas, z0b, workers=args.workers,
+                                                 devices=jax.devices()[:1]))
 
     @eqx.filter_jit
     def vmapped(params, datas, z0b):
@@ -412,6 +429,10 @@ def main():
     pooled()
     cold_pool = time.perf_counter() - t0
     t_pool, (z_b, chi2_b, ok_b, it_b) = timed(pooled, n_rep)
+    t0 = time.perf_counter()
+    pooled_one()
+    cold_one = time.perf_counter() - t0
+    t_one, out_one = timed(pooled_one, n_rep)
     t0 = time.perf_counter()
     jax.block_until_ready(vmapped(params, datas, z0b))
     cold_vmap = time.perf_counter() - t0
@@ -437,11 +458,16 @@ def main():
     print(f"  scipy, {args.batch} sequential fits            : {t_seq:8.3f} s (faster of 2 "
           f"runs; median {statistics.median(r.nfev for r in sc)} evaluations + "
           f"{statistics.median(r.njev for r in sc)} Jacobians per fit)")
-    print(f"  JAX solve_batch LM, pool of {args.workers:2d} lanes   : {t_pool:8.3f} s (median "
-          f"of {n_rep}; first call incl. compile {cold_pool:.2f} s); steps per set median "
-          f"{int(np.median(it_b))}, 90th pct {int(np.percentile(it_b, 90))}, max "
+    n_dev = jax.device_count()
+    print(f"  JAX solve_batch LM, {n_dev} device(s) x pool of {args.workers} lanes: {t_pool:8.3f} s"
+          f" (median of {n_rep}; first call incl. compile {cold_pool:.2f} s); steps per set "
+          f"median {int(np.median(it_b))}, 90th pct {int(np.percentile(it_b, 90))}, max "
           f"{int(np.max(it_b))}, sum {int(np.sum(it_b))}; converged "
           f"{int(np.sum(ok_b))}/{args.batch}; ratio scipy/this {t_seq / t_pool:.1f}x")
+    same = np.allclose(np.asarray(out_one[1]), np.asarray(chi2_b), rtol=1e-9)
+    print(f"  JAX solve_batch LM, 1 device x pool of {args.workers} lanes : {t_one:8.3f} s "
+          f"(median of {n_rep}; first call incl. compile {cold_one:.2f} s); same chi2 as the "
+          f"spread batch: {same}; ratio scipy/this {t_seq / t_one:.1f}x")
     print(f"  JAX LM, one plain vmap over all sets : {t_vmap:8.3f} s (first call incl. compile "
           f"{cold_vmap:.2f} s; every lane runs {int(np.max(it_v))} steps, the slowest set's); "
           f"ratio scipy/this {t_seq / t_vmap:.1f}x")
@@ -451,7 +477,8 @@ def main():
           f"median {int(np.median(it_lb))}, max {int(np.max(it_lb))}; converged "
           f"{sum(bool(o[2][0]) for o in out_lb)}/{args.batch}); ratio scipy/this "
           f"{t_seq / t_lb:.1f}x")
-    print(f"  ratio sequential scipy / solve_batch (LM): {t_seq / t_pool:6.1f}x")
+    print(f"  ratio sequential scipy / solve_batch (LM): {t_seq / t_pool:6.1f}x on {n_dev} "
+          f"device(s), {t_seq / t_one:6.1f}x on one (scipy runs on one core)")
     best = np.minimum(np.minimum(chi_j, chi_s), chi_lb)
     for name, chi, p in (("JAX LM", chi_j, p_b), ("JAX L-BFGS", chi_lb, p_lb),
                          ("scipy", chi_s, p_s)):

@@ -447,9 +447,9 @@ def prepare_curves(
     scal = {key: np.array([r[key] for r in rows], dtype=float)
             for key in ("sigma", "ramp_width", "depth", "pull_force", "pull_sigma", "jump_disp",
                         "jump_sigma", "has_jump", "attached_end", "stiffness")}
-    return CurveBatch(**{k: jnp.asarray(v) for k, v in stack.items()},
-                      valid=jnp.asarray(valid), **{k: jnp.asarray(v) for k, v in scal.items()},
-                      profile=profile)
+    # one transfer of all arrays (a `jnp.asarray` each costs ~30 µs of dispatch)
+    arrays = jax.device_put(dict(stack, valid=valid, **scal))
+    return CurveBatch(**arrays, profile=profile)
 
 
 # --------------------------------------------------------------------------------------

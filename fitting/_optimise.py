@@ -190,8 +190,8 @@ def make_parameterisation(names, reference: Mapping[str, float],
     free = tuple(i for i, n in enumerate(names) if n not in fixed)
     if not free:
         raise ValueError("fixed: every parameter is fixed; nothing to fit")
-    return Parameterisation(free=free, reference=jnp.asarray(np.log(ref)),
-                            lower=jnp.asarray(lo), upper=jnp.asarray(hi))
+    reference, lower, upper = jax.device_put((np.log(ref), lo, hi))
+    return Parameterisation(free=free, reference=reference, lower=lower, upper=upper)
 
 
 def start_points(n_free: int, n_starts: int) -> np.ndarray:
@@ -453,6 +453,8 @@ def _run_vmap(method: _Method, z0s, ctx):
         s = method.init(z0, ctx)
         return jax.lax.while_loop(lambda s: ~s.done, lambda s: method.step(s, ctx), s)
 
+    if z0s.shape[0] == 1:  # one start: no batch axis inside the loop (unbatched algebra)
+        return jax.tree.map(lambda x: x[None], one(z0s[0]))
     return jax.vmap(one)(z0s)
 
 
@@ -534,10 +536,9 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
     return _run_pool(method, z0s, ctxs, workers)
 
 
-@functools.partial(jax.jit, static_argnames=_OPTIONS)
 def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0s, *,
                 workers: int = 8, rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8,
-                max_steps: int = 200, optimiser: str = "lm"):
+                max_steps: int = 200, optimiser: str = "lm", devices=None):
     """Independent problems in one compiled call, scheduled as a pool of `workers` lanes.
 
     `params`, `datas` and `z0s` carry a leading problem axis (stack equally shaped problems
@@ -546,9 +547,50 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     problem has stopped takes the next one from the queue inside the same `while_loop`,
     so the slowest problem no longer holds all lanes. Returns `(z, chi2, ok, steps)` per
     problem, as :func:`solve`.
+
+    `devices`: the devices to spread the problems over (default: every local device of
+    JAX's default backend). With more than one, the problems are split into equal shares
+    (the last problem repeated to fill them; its copies are dropped) and every device runs
+    its own pool of `workers` lanes, all in one `jax.pmap` call: several GPUs, or several
+    CPU cores once JAX exposes them as devices (``jax.config.update("jax_num_cpu_devices",
+    n)`` before the first computation, as `benchmarks/bench_fit.py` does for the usable
+    cores). Results do not depend on the split.
     """
+    devices = list(jax.local_devices() if devices is None else devices)
+    if not devices:
+        raise ValueError("devices: give at least one device (or None for all local ones)")
+    n = z0s.shape[0]
+    n_dev = max(1, min(len(devices), n))
+    opts = dict(workers=int(workers), rtol=float(rtol), atol=float(atol), gtol=float(gtol),
+                max_steps=int(max_steps), optimiser=optimiser)
+    if n_dev == 1:
+        with jax.default_device(devices[0]):
+            return _solve_batch(spec, params, datas, z0s, **opts)
+    share = -(-n // n_dev)
+    fill = np.minimum(np.arange(n_dev * share), n - 1)
+
+    def split(x):
+        x = jnp.asarray(x)[fill]
+        return x.reshape((n_dev, share) + x.shape[1:])
+
+    run = _pmapped_pool(spec, tuple(devices[:n_dev]), tuple(sorted(opts.items())))
+    out = run(jax.tree.map(split, params), jax.tree.map(split, datas), split(z0s))
+    return tuple(x.reshape((n_dev * share,) + x.shape[2:])[:n] for x in out)
+
+
+@functools.partial(jax.jit, static_argnames=_OPTIONS)
+def _solve_batch(spec, params, datas, z0s, *, workers, rtol, atol, gtol, max_steps,
+                 optimiser):
     method = _method(spec, optimiser, rtol, atol, gtol, max_steps)
     return _run_pool(method, z0s, (params, datas), workers)
+
+
+@functools.lru_cache(maxsize=16)
+def _pmapped_pool(spec, devices, opts):
+    o = dict(opts)
+    method = _method(spec, o["optimiser"], o["rtol"], o["atol"], o["gtol"], o["max_steps"])
+    return jax.pmap(lambda p, d, z: _run_pool(method, z, (p, d), o["workers"]),
+                    devices=list(devices))
 
 
 @functools.partial(jax.jit, static_argnums=(4, 5, 6, 7, 8))

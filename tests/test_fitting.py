@@ -124,6 +124,53 @@ def test_solve_batch_pool_matches_single_solves():
     assert np.ptp(np.asarray(chi2)) > 1.0
 
 
+def test_solve_batch_spread_over_devices_matches_one_device():
+    """Two CPU devices (a fresh process): 3 problems split 2 + 2 (the last repeated) in one
+    pmap call give the same results as one device's pool, in the problems' order."""
+    import subprocess
+    import sys
+
+    code = (
+        "import json, jax, jax.numpy as jnp, numpy as np\n"
+        "jax.config.update('jax_enable_x64', True)\n"
+        "jax.config.update('jax_num_cpu_devices', 2)\n"
+        "import sys; sys.path.insert(0, 'tests')\n"
+        "import test_fitting as T\n"
+        "from fitting._objective import make_spec, prepare_curves\n"
+        "from fitting._optimise import make_parameterisation, solve_batch\n"
+        "spec = make_spec(); probs = []\n"
+        "for seed, f in ((4, 2.0), (5, 0.5), (6, 3.0)):\n"
+        "    d = prepare_curves(T._curves(noise=0.01, seed=seed, n=60), spec, radius=T.R)\n"
+        "    p = make_parameterisation(list(T.TRUE), {k: v * f for k, v in T.TRUE.items()},\n"
+        "                              None, None)\n"
+        "    probs.append((p, d, jnp.asarray(p.z_of(np.asarray(p.reference)))[None]))\n"
+        "st = lambda *x: jnp.stack(x)\n"
+        "P = jax.tree.map(st, *[q[0] for q in probs]); D = jax.tree.map(st, *[q[1] for q in probs])\n"
+        "Z = jnp.concatenate([q[2] for q in probs])\n"
+        "two = solve_batch(spec, P, D, Z, workers=2)\n"
+        "one = solve_batch(spec, P, D, Z, workers=2, devices=jax.devices()[:1])\n"
+        "print(json.dumps(dict(n=jax.device_count(), two=[np.asarray(x).tolist() for x in two],\n"
+        "                      one=[np.asarray(x).tolist() for x in one])))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=pathlib.Path(__file__).parent.parent)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["n"] == 2
+    (z2, c2, ok2, s2), (z1, c1, ok1, s1) = res["two"], res["one"]
+    assert len(c2) == 3 and all(ok2) and all(ok1)
+    np.testing.assert_allclose(c2, c1, rtol=1e-9)
+    np.testing.assert_allclose(z2, z1, rtol=1e-7, atol=1e-9)
+    assert s2 == s1
+    assert np.ptp(c2) > 1.0  # three different problems, in their order
+
+
+def test_solve_batch_rejects_empty_devices():
+    from fitting._optimise import solve_batch
+
+    with pytest.raises(ValueError, match="devices"):
+        solve_batch(make_spec(), None, None, jnp.zeros((2, 4)), devices=[])
+
+
 def test_recovery_noisy():
     res = fitting.fit(_curves(noise=0.01, seed=1), radius=R,
                       initial={k: v * 3 for k, v in TRUE.items()}, n_starts=1, progress=False)

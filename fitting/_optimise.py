@@ -29,7 +29,8 @@ synthetic relaxed-model curve sets, 3 speeds × 200 samples, 1 % noise, random t
 parameters, data-driven initial guess, one start, `rtol = 1e-8`):
 
 * LM: 18 iterations median (mean 23.7, 90th percentile 44, max 92), one Jacobian each;
-  ≈0.18 ms per iteration for one problem on this CPU; the χ² was more than 1 % above the
+  ≈0.08–0.11 ms per iteration for one problem on this CPU (one core, with
+  `jaxcontact.cli.XLA_CPU_FLAGS`); the χ² was more than 1 % above the
   best of LM, L-BFGS and scipy in 16 of 100 sets (local minima where the model's jump-off
   crosses samples). Without the step extension plain LM needed 22 median, mean
   33.1, max 199 iterations. scipy `least_squares` (trf): 26 residual evaluations median
@@ -38,8 +39,8 @@ parameters, data-driven initial guess, one start, `rtol = 1e-8`):
 * L-BFGS: 19 iterations median (mean 19.8, max 32) with 25 gradient evaluations median
   (mean 28, max 76); more than 1 % above the best in only 2 of 100 sets: the line search
   crosses the kinks of the jump-off ramp that stall the Gauss–Newton model. But each
-  iteration carries the zoom line search's own loop, so a fit took 3–4× longer than LM
-  (≈20 ms against ≈5.5 ms for the curve set of the benchmark), and from a start 3× too
+  iteration carries the zoom line search's own loop, so a fit took 1.5–2× longer than LM
+  (≈4.5–6 ms against ≈3 ms for the curve set of the benchmark), and from a start 3× too
   large in every parameter a single L-BFGS start ended in a local minimum ($G_1 \to 0$)
   where LM did not (the default 4 starts recover).
 
@@ -51,14 +52,17 @@ Starts and batches: a `vmap`-ed `while_loop` runs until its slowest lane stops. 
 independent problems (:func:`solve_batch`) the lanes are therefore scheduled as a pool:
 `workers` lanes iterate, and a lane whose problem has stopped takes the next one from the
 queue in the same compiled loop, so the cost is the sum of the steps, not
-(number of problems) × (largest step count). Measured for the 100 sets above (LM; 2 shared
-CPU cores; medians): pool of 8 lanes 0.33 s, 4 lanes 0.40 s, 2 lanes 0.53 s, one plain
-`vmap` over all 100 sets 0.81 s (every lane runs the 92 steps of the slowest set), a Python
-loop over the jitted single-problem `solve` 0.58–0.61 s; 100 sequential scipy fits 5.1 s.
-On a CPU the lanes buy little vectorisation (the per-lane cost of a Jacobian is almost that
-of one problem alone), so few lanes and no waiting is what counts. L-BFGS batches poorly
-(the zoom line search is a nested `while_loop` whose lanes wait for each other): its pool
-of 8 lanes was slower than a Python loop over problems.
+(number of problems) × (largest step count). With several devices (GPUs, or CPU cores that
+JAX exposes as devices) every device runs its own pool on an equal share of the problems,
+in one `jax.pmap` call. Measured for the 100 sets above (LM; `python
+benchmarks/bench_fit.py`, 2-core CPU, 2026-11-23): pool of 8 lanes on each of 2 CPU devices
+0.115 s, on one device 0.19–0.21 s, one plain `vmap` over all 100 sets 0.42–0.72 s (every
+lane runs the 92 steps of the slowest set), a Python loop over the jitted single-problem
+`solve` 0.22–0.24 s; 100 sequential scipy fits 4.95 s. On a CPU the lanes buy little
+vectorisation (the per-lane cost of a Jacobian is almost that of one problem alone; 16 or
+32 lanes were slower than 8), so no waiting and one pool per core is what counts. L-BFGS
+batches poorly (the zoom line search is a nested `while_loop` whose lanes wait for each
+other): its pool of 8 lanes was slower than a Python loop over problems.
 """
 
 from __future__ import annotations

@@ -1,0 +1,54 @@
+"""Tests of the scalar root finder (`jaxcontact._root.bracketed_root`)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcontact._root import bracketed_root
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_simple_root_to_round_off(dtype):
+    eps = float(jnp.finfo(dtype).eps)
+    c = jnp.asarray(2.0, dtype)
+    x = bracketed_root(lambda x: x**3 - c, jnp.asarray(0.0, dtype), jnp.asarray(2.0, dtype))
+    assert x.dtype == dtype
+    assert abs(float(x) - 2.0 ** (1.0 / 3.0)) <= 4 * eps * 2.0 ** (1.0 / 3.0)
+
+
+def test_small_root_in_a_wide_bracket_keeps_relative_accuracy():
+    # a contact radius of ~1e-6 m bracketed by [0, 1 m]: stopping is relative to the root
+    R, d = 1e-5, 1e-7
+    a = bracketed_root(lambda a: a * a / R - d, 0.0, 1.0)
+    assert float(a) == pytest.approx(np.sqrt(R * d), rel=1e-14)
+
+
+def test_multiple_root_stops_at_the_round_off_floor():
+    # f = (x - 1)^3: f' = 0 at the root, Newton converges linearly; the result is limited by
+    # the round-off of f, |x - 1| ~ eps^(1/3)
+    x = bracketed_root(lambda x: (x - 1.0) ** 3, 0.0, 3.0)
+    assert abs(float(x) - 1.0) < 1e-5
+
+
+def test_vmap_lanes_match_scalar_calls_and_jit():
+    cs = jnp.array([0.5, 2.0, 7.0, 1e-6, 1e6])
+
+    def root(c):
+        return bracketed_root(lambda x: x**3 - c, 0.0, jnp.maximum(c, 1.0))
+
+    lanes = jax.jit(jax.vmap(root))(cs)
+    for c, x in zip(cs, lanes, strict=True):
+        assert float(x) == pytest.approx(float(root(c)), rel=1e-15)
+        assert float(x) == pytest.approx(float(c) ** (1 / 3), rel=1e-14)
+
+
+def test_implicit_derivative_against_closed_form():
+    # x(c) = c^(1/3): dx/dc = c^(-2/3)/3, forward and reverse mode
+    def root(c):
+        return bracketed_root(lambda x: x**3 - c, 0.0, 10.0)
+
+    for c in (0.3, 2.0, 50.0):
+        expect = c ** (-2.0 / 3.0) / 3.0
+        assert float(jax.grad(root)(c)) == pytest.approx(expect, rel=1e-12)
+        assert float(jax.jvp(root, (c,), (1.0,))[1]) == pytest.approx(expect, rel=1e-12)

@@ -591,9 +591,8 @@ def _solve_batch(spec, params, datas, z0s, *, workers, rtol, atol, gtol, max_ste
 
 @functools.lru_cache(maxsize=16)
 def _pmapped_pool(spec, devices, opts):
-    o = dict(opts)
-    method = _method(spec, o["optimiser"], o["rtol"], o["atol"], o["gtol"], o["max_steps"])
-    return jax.pmap(lambda p, d, z: _run_pool(method, z, (p, d), o["workers"]),
+    # every device runs `_solve_batch` on its share
+    return jax.pmap(lambda p, d, z: _solve_batch(spec, p, d, z, **dict(opts)),
                     devices=list(devices))
 
 

@@ -142,16 +142,16 @@ def _dphi(x):
     return jnp.where(small, series, (jnp.exp(-xl) - _phi(xl)) / xl)
 
 
-def _increments(dt, ddelta, ratio, tau):
+def _increments(dt, tau):
     x = dt / tau
-    return x, jnp.exp(-x), ddelta * _phi(x)
+    return x, jnp.exp(-x), _phi(x)
 
 
 @jax.custom_jvp
 def _states_increments(dt, ddelta, ratio, tau):
     # w = L(alpha) (ratio ddelta phi(x)), x = dt/tau; shapes (n, 1), (n, 1), (N,), (N,)
-    _, alpha, unit = _increments(dt, ddelta, ratio, tau)
-    return _recurrence(alpha, ratio * unit)
+    _, alpha, phi = _increments(dt, tau)
+    return _recurrence(alpha, ratio * ddelta * phi)
 
 
 def _states_increments_jvp(primals, tangents):
@@ -168,8 +168,8 @@ def _states_increments_jvp(primals, tangents):
     """
     dt, ddelta, ratio, tau = primals
     t_dt, t_ddelta, t_ratio, t_tau = tangents
-    x, alpha, unit = _increments(dt, ddelta, ratio, tau)
-    u = _recurrence(alpha, unit)
+    x, alpha, phi = _increments(dt, tau)
+    u = _recurrence(alpha, ddelta * phi)
     w = ratio * u
     w_prev = jnp.concatenate([jnp.zeros_like(w[:1]), w[:-1]])
     dphi = _dphi(x)
@@ -185,7 +185,7 @@ def _states_increments_jvp(primals, tangents):
         # dw = L(alpha) (dbeta + dalpha w_prev) for the sampling's own tangents
         forcing = jnp.zeros_like(w)
         if not zero(t_ddelta):
-            forcing = forcing + ratio * t_ddelta * _phi(x)
+            forcing = forcing + ratio * t_ddelta * phi
         if not zero(t_dt):
             forcing = forcing + (ratio * ddelta * dphi - alpha * w_prev) * (t_dt / tau)
         dw = dw + _recurrence(alpha, forcing)

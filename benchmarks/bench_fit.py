@@ -30,7 +30,7 @@ of each contender per round, and the medians are compared):
    `solve` (LM and L-BFGS).
 
 JAX setup (printed at the start): the XLA CPU option of the command line
-(`jaxcontact.cli.tune_xla_cpu`; `--no-xla-tuning` leaves XLA's defaults) and one JAX CPU
+(`fitting.tune_xla_cpu`; `--no-xla-tuning` leaves XLA's defaults) and one JAX CPU
 device per usable core (`--cpu-devices`); single fits run on the first device. scipy and
 numpy run on one core. On a shared machine, pinning the process to one core
 (``taskset -c 0 python benchmarks/bench_fit.py``) gives steadier single-fit timings: XLA
@@ -59,9 +59,9 @@ from scipy.signal import lfilter
 
 import fitting
 import jaxcontact as jc
+from fitting import tune_xla_cpu
 from fitting._objective import initial_guess, make_spec, prepare_curves, residuals
 from fitting._optimise import make_parameterisation, solve, solve_batch
-from jaxcontact.cli import tune_xla_cpu
 
 R = 10e-6
 D0 = 1e-6
@@ -299,7 +299,7 @@ def main():
     ap.add_argument("--noise", type=float, default=0.01, help="noise, fraction of the range")
     ap.add_argument("--no-xla-tuning", action="store_true",
                     help="leave XLA's CPU options at their defaults (the command line applies "
-                         "jaxcontact.cli.XLA_CPU_FLAGS; see jaxcontact.cli.tune_xla_cpu)")
+                         "fitting.XLA_CPU_FLAGS; see fitting.tune_xla_cpu)")
     ap.add_argument("--cpu-devices", type=int, default=None,
                     help="CPU devices JAX exposes (default: the usable cores); solve_batch "
                          "spreads the batch over them, single fits use the first")

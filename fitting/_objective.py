@@ -91,7 +91,7 @@ from jaxtyping import Array, Float
 
 import jaxcontact as jc
 
-from ._data import Curve, resample, select_segments
+from ._curve import Curve, resample, select_segments
 
 __all__ = [
     "ModelSpec",
@@ -105,6 +105,10 @@ __all__ = [
     "residuals",
     "residuals_natural",
     "initial_guess",
+    "jacobian_fn",
+    "log_jacobian",
+    "canonical_name",
+    "normalise_names",
 ]
 
 _UNITS = {"G": "Pa", "eta": "Pa_s", "tau": "s", "work_of_adhesion": "J_m2"}
@@ -509,6 +513,56 @@ def residuals(theta_log: Float[Array, " p"], data: CurveBatch, spec: ModelSpec
               ) -> Float[Array, " m"]:
     """`residuals_natural` of $p = e^\\theta$ (pure and jittable)."""
     return residuals_natural(jnp.exp(theta_log), data, spec)
+
+
+def jacobian_fn(fn):
+    """`z -> (r, J)`: `fn(z)` and its Jacobian by forward mode (the project's one helper).
+
+    `jax.linearize` evaluates the model once and keeps the partial derivatives of its
+    intermediates; the linear map is then pushed along each free direction (`vmap` over
+    the identity). On the relaxed model this measured 1.2–1.4× faster than `jax.jacfwd`
+    (whose fused tangent kernels recompute the primal transcendentals per direction).
+    Reverse mode is not used: through the forward models' jump-off refinement it gives NaN.
+    """
+
+    def fn_jac(z):
+        r, lin = jax.linearize(fn, z)
+        J = jax.vmap(lin, out_axes=1)(jnp.eye(z.shape[0], dtype=z.dtype))
+        return r, J
+
+    return fn_jac
+
+
+@eqx.filter_jit
+def log_jacobian(spec: ModelSpec, free: tuple[int, ...], theta, data: CurveBatch):
+    """Residuals at log-parameters `theta` and their Jacobian w.r.t. the `free` entries."""
+    idx = jnp.asarray(free)
+    return jacobian_fn(lambda lf: residuals(theta.at[idx].set(lf), data, spec))(theta[idx])
+
+
+_UNIT_SUFFIXES = ("Pa", "Pa_s", "s", "J_m2", "m", "N")
+
+
+def canonical_name(name: str, names: Sequence[str]) -> str:
+    """The short parameter name of `name` (``"G0"`` or ``"G0_Pa"``); `KeyError` if unknown."""
+    if name in names:
+        return name
+    for n in names:
+        if name.startswith(n + "_") and name[len(n) + 1:] in _UNIT_SUFFIXES:
+            return n
+    raise KeyError(f"unknown parameter {name!r}; the parameters are {list(names)}")
+
+
+def normalise_names(mapping, names, what: str) -> dict:
+    """`mapping` keyed by short parameter names; `ValueError` naming `what` if unknown."""
+    out = {}
+    for k, v in (mapping or {}).items():
+        try:
+            out[canonical_name(k, names)] = v
+        except KeyError:
+            raise ValueError(f"{what}: unknown parameter {k!r}; the parameters are "
+                             f"{list(names)}") from None
+    return out
 
 
 # --------------------------------------------------------------------------------------

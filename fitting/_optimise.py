@@ -30,7 +30,7 @@ parameters, data-driven initial guess, one start, `rtol = 1e-8`):
 
 * LM: 18 iterations median (mean 23.7, 90th percentile 44, max 92), one Jacobian each;
   ≈0.08–0.11 ms per iteration for one problem on this CPU (one core, with
-  `jaxcontact.cli.XLA_CPU_FLAGS`); the χ² was more than 1 % above the
+  `fitting.XLA_CPU_FLAGS`); the χ² was more than 1 % above the
   best of LM, L-BFGS and scipy in 16 of 100 sets (local minima where the model's jump-off
   crosses samples). Without the step extension plain LM needed 22 median, mean
   33.1, max 199 iterations. scipy `least_squares` (trf): 26 residual evaluations median
@@ -83,19 +83,22 @@ import optax.tree_utils as otu
 
 import jaxcontact as jc
 
-from ._data import Curve
+from ._curve import Curve
 from ._objective import (
     CurveBatch,
     ModelSpec,
     Parameterisation,
+    canonical_name,
     initial_guess,
+    jacobian_fn,
+    log_jacobian,
     make_spec,
+    normalise_names,
     parameter_info,
     predict,
     prepare_curves,
     residuals,
 )
-from ._uncertainty import _jacobian
 
 __all__ = ["FitResult", "OPTIMISERS", "fit", "solve", "solve_batch", "start_points",
            "make_parameterisation"]
@@ -151,35 +154,15 @@ class FitResult:
         return dict(zip(self.names, (float(v) for v in self.values), strict=True))
 
     def __getitem__(self, name: str) -> float:
-        return self.as_dict()[_short(name, self.names)]
-
-
-def _short(name: str, names: Sequence[str]) -> str:
-    if name in names:
-        return name
-    for n in names:
-        if name.startswith(n + "_") and name[len(n) + 1:] in ("Pa", "Pa_s", "s", "J_m2"):
-            return n
-    raise KeyError(f"unknown parameter {name!r}; the parameters are {list(names)}")
-
-
-def _normalise(mapping, names, what):
-    out = {}
-    for k, v in (mapping or {}).items():
-        try:
-            out[_short(k, names)] = v
-        except KeyError:
-            raise ValueError(f"{what}: unknown parameter {k!r}; the parameters are "
-                             f"{list(names)}") from None
-    return out
+        return self.as_dict()[canonical_name(name, self.names)]
 
 
 def make_parameterisation(names, reference: Mapping[str, float],
                           fixed: Mapping[str, float] | None,
                           bounds: Mapping[str, tuple[float, float]] | None) -> Parameterisation:
     """Parameterisation around `reference` (natural values) with fixed values and bounds."""
-    fixed = _normalise(fixed, names, "fixed")
-    bounds = _normalise(bounds, names, "bounds")
+    fixed = normalise_names(fixed, names, "fixed")
+    bounds = normalise_names(bounds, names, "bounds")
     ref = np.array([float(fixed.get(n, reference[n])) for n in names])
     if np.any(~np.isfinite(ref)) or np.any(ref <= 0):
         bad = names[int(np.argmax(~(np.isfinite(ref) & (ref > 0))))]
@@ -233,23 +216,6 @@ def _residual_fn(spec: ModelSpec):
     return fn_r
 
 
-def _jacobian_fn(fn):
-    """`z -> (r, J)`: `fn(z)` and its Jacobian by forward mode.
-
-    `jax.linearize` evaluates the model once and keeps the partial derivatives of its
-    intermediates; the linear map is then pushed along each free direction (`vmap` over
-    the identity). On the relaxed model this measured 1.2–1.4× faster than `jax.jacfwd`
-    (whose fused tangent kernels recompute the primal transcendentals per direction).
-    """
-
-    def fn_jac(z):
-        r, lin = jax.linearize(fn, z)
-        J = jax.vmap(lin, out_axes=1)(jnp.eye(z.shape[0], dtype=z.dtype))
-        return r, J
-
-    return fn_jac
-
-
 class _Method(NamedTuple):
     """An optimiser as `init(z0, ctx) -> state` and `step(state, ctx) -> state`.
 
@@ -299,7 +265,7 @@ def _lm_method(fn_r, rtol, atol, max_steps) -> _Method:
     """
 
     def jac(z, ctx):
-        return _jacobian_fn(lambda zz: fn_r(zz, ctx))(z)
+        return jacobian_fn(lambda zz: fn_r(zz, ctx))(z)
 
     def init(z0, ctx):
         r0, J0 = jac(z0, ctx)
@@ -351,7 +317,7 @@ def _half_ssq(fn_r, z, ctx):
 
 
 def _half_ssq_fwd(fn_r, z, ctx):
-    r, J = _jacobian_fn(lambda zz: fn_r(zz, ctx))(z)
+    r, J = jacobian_fn(lambda zz: fn_r(zz, ctx))(z)
     return 0.5 * jnp.sum(r * r), (J.T @ r, ctx)
 
 
@@ -608,13 +574,13 @@ def _fit_core(spec, param, data, z0s, optimiser, rtol, atol, gtol, max_steps):
     idx = jnp.asarray(param.free)
 
     def fresh():
-        return _jacobian(spec, param.free, theta, data)
+        return log_jacobian(spec, param.free, theta, data)
 
     if optimiser == "lm":
         # reuse the last accepted Jacobian: d r/d log p = (d r/d z) / (d theta/d z)
         dtheta = jnp.diagonal(jax.jacfwd(lambda zz: param.theta(zz)[idx])(z))
         r, J = jax.lax.cond(jnp.all(jnp.abs(dtheta) > 1e-8),
-                            lambda: (s.r[best], s.J[best] / dtheta), fresh)
+                            lambda: (s.r[best], s.J[best] / dtheta[None, :]), fresh)
     else:
         r, J = fresh()
     sol = predict(spec, jnp.exp(theta), data)
@@ -708,7 +674,7 @@ def fit(
     names = [n for n, _, _ in parameter_info(spec)]
     columns = [c for _, _, c in parameter_info(spec)]
     guess = initial_guess(curves, spec, profile)
-    guess.update(_normalise(initial, names, "initial"))
+    guess.update(normalise_names(initial, names, "initial"))
     param = make_parameterisation(names, guess, fixed, bounds)
     n_free = len(param.free)
     z_init = param.z_of(np.asarray(param.reference))

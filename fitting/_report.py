@@ -35,7 +35,7 @@ def result_table(result) -> dict:
     out: dict = {}
     for col, v, s, f in zip(result.columns, result.values, result.stderr, result.fixed,
                             strict=True):
-        out[col] = {"value": float(v), "stderr": _num(s), "fixed": bool(f)}
+        out[col] = {"value": _num(v), "stderr": _num(s), "fixed": bool(f)}
     if result.spec.rheology == "standard":
         g0, g1, eta = (float(result.values[i]) for i in range(3))
         out["G_inf_Pa"] = {"value": g0 * g1 / (g0 + g1), "derived": True}
@@ -118,7 +118,7 @@ def write_report(result, out_dir, *, figure: bool = True) -> dict[str, pathlib.P
     out.mkdir(parents=True, exist_ok=True)
     table = result_table(result)
     paths = {"json": out / "parameters.json", "csv": out / "parameters.csv"}
-    paths["json"].write_text(json.dumps(table, indent=2) + "\n")
+    paths["json"].write_text(json.dumps(table, indent=2, allow_nan=False) + "\n")
     with paths["csv"].open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["parameter", "unit", "value", "stderr", "relative_stderr", "fixed"])

@@ -75,7 +75,7 @@ def critical_elongation(
     """
     _check_common(radius, work_of_adhesion)
     check_positive("glass_modulus", glass_modulus, "Pa")
-    a, w, g0 = jnp.asarray(radius), jnp.asarray(work_of_adhesion), jnp.asarray(glass_modulus)
+    a, w, g0 = jnp.broadcast_arrays(radius, work_of_adhesion, glass_modulus)
     return jnp.sqrt(jnp.pi * a * w / (2 * g0))
 
 
@@ -100,7 +100,7 @@ def critical_line_load(
     """
     _check_common(radius, work_of_adhesion)
     check_positive("glass_modulus", glass_modulus, "Pa")
-    a, w, g0 = jnp.asarray(radius), jnp.asarray(work_of_adhesion), jnp.asarray(glass_modulus)
+    a, w, g0 = jnp.broadcast_arrays(radius, work_of_adhesion, glass_modulus)
     return -jnp.sqrt(8 * jnp.pi * a * w * g0)
 
 
@@ -122,7 +122,7 @@ def hess_elongation(
     """
     _check_common(radius, work_of_adhesion)
     check_positive("effective_modulus", effective_modulus, "Pa")
-    a, w, e = jnp.asarray(radius), jnp.asarray(work_of_adhesion), jnp.asarray(effective_modulus)
+    a, w, e = jnp.broadcast_arrays(radius, work_of_adhesion, effective_modulus)
     return jnp.sqrt(2 * jnp.pi * a * w / e)
 
 
@@ -143,7 +143,7 @@ def bem_release_energy(
     check_finite("stress", stress, "Pa")
     check_positive("cell_size", cell_size, "m")
     check_positive("effective_modulus", effective_modulus, "Pa")
-    s, d, e = jnp.asarray(stress), jnp.asarray(cell_size), jnp.asarray(effective_modulus)
+    s, d, e = jnp.broadcast_arrays(stress, cell_size, effective_modulus)
     return BEM_CHI * s**2 * d**3 / e
 
 
@@ -167,5 +167,5 @@ def bem_critical_stress(
     check_positive("cell_size", cell_size, "m")
     check_positive("work_of_adhesion", work_of_adhesion, "J/m^2")
     check_positive("effective_modulus", effective_modulus, "Pa")
-    d, w, e = jnp.asarray(cell_size), jnp.asarray(work_of_adhesion), jnp.asarray(effective_modulus)
+    d, w, e = jnp.broadcast_arrays(cell_size, work_of_adhesion, effective_modulus)
     return -jnp.sqrt(e * w / (BEM_CHI * d))

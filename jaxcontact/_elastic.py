@@ -24,7 +24,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._profiles import AbstractProfile, Cone, FlatPunch, Parabola, PowerLaw, power_law_factor
 from ._root import bracketed_root
-from ._validate import as_float, check_positive
+from ._solvers import as_float
+from ._validate import check_positive
 
 __all__ = [
     "jkr_displacement",
@@ -394,11 +395,15 @@ def contact_pressure(
     inside = r < a
     r_in = jnp.where(inside, r, 0.5 * a)
     umax = jnp.sqrt(a**2 - r_in**2)
-    u = 0.5 * umax[..., None] * (jnp.asarray(_GL_NODES) + 1.0)
+    # quadrature nodes and weights on a trailing axis, of the rank of `r[..., None]`
+    lead = (1,) * jnp.ndim(umax)
+    nodes = jnp.reshape(jnp.asarray(_GL_NODES), lead + (-1,))
+    weights = jnp.reshape(jnp.asarray(_GL_WEIGHTS), lead + (-1,))
+    u = 0.5 * umax[..., None] * (nodes + 1.0)
     x = jnp.sqrt(r_in[..., None] ** 2 + u**2)
     x = jnp.maximum(x, 1e-300)
     integrand = profile.dg(x) / x
-    integral = 0.5 * umax * jnp.sum(jnp.asarray(_GL_WEIGHTS) * integrand, axis=-1)
+    integral = 0.5 * umax * jnp.sum(weights * integrand, axis=-1)
     edge = (displacement - profile.g(a)) / umax
     p = effective_modulus / jnp.pi * (integral + edge)
     return jnp.where(inside, p, 0.0)

@@ -27,7 +27,8 @@ import jax.numpy as jnp
 from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float
 
-from ._validate import as_float, check_positive
+from ._solvers import as_float
+from ._validate import check_positive
 
 __all__ = [
     "AbstractProfile",

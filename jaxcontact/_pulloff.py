@@ -17,7 +17,8 @@ the glass modulus),
 
 $$\dot w_k = \frac{G_k}{G_g}\,\dot\delta - \frac{w_k}{\tau_k},\qquad w_k(0) = 0.$$
 
-For the standard model this is the corrected eq. (24) of PHYSICS.md:
+For the standard model this is the paper's eq. (24) corrected (the printed one drops a
+constant and misses the relaxed state at $t = 0$; `docs/physics.md` §4):
 $u_{G_0} = [G_1(d_0 - v_0t - x^2/R) - G_0\tau v_0(1-e^{-t/\tau})]/(G_0+G_1)$.
 
 **Detachment.** The energetic criterion (eq. 10–11) says the edge element detaches when its
@@ -60,7 +61,8 @@ from ._elastic import (
 from ._profiles import AbstractProfile, Cone, FlatPunch, Parabola
 from ._root import bracketed_root
 from ._solution import RESULTS, ContactSolution, is_error
-from ._validate import as_float, check_finite, check_positive, check_times, is_concrete
+from ._solvers import as_float
+from ._validate import check_finite, check_positive, check_times, is_concrete
 
 __all__ = ["retract", "ExactUpdate", "DiffraxODE", "AbstractMethod"]
 
@@ -112,11 +114,11 @@ def _phi(x):
     return jnp.where(x > 0, -jnp.expm1(-safe) / safe, 1.0)
 
 
-def _states_velocity(ts, velocity, ratio, tau):
+def _states_velocity(ts, velocity, arm_ratio, tau):
     # w_k(t) = -(G_k/G_g) tau_k v (1 - exp(-t/tau_k)); shape (n, N). Written without a
     # per-sample division, so that XLA fuses it with the front root into one pass.
-    t = ts[:, None]
-    return (ratio * velocity * tau) * jnp.expm1(t * (-1.0 / tau))
+    t, arm_ratio, tau = ts[:, None], arm_ratio[None, :], tau[None, :]
+    return (arm_ratio * velocity * tau) * jnp.expm1(t * (-1.0 / tau))
 
 
 def _combine(left, right):
@@ -148,10 +150,10 @@ def _increments(dt, tau):
 
 
 @jax.custom_jvp
-def _states_increments(dt, ddelta, ratio, tau):
-    # w = L(alpha) (ratio ddelta phi(x)), x = dt/tau; shapes (n, 1), (n, 1), (N,), (N,)
+def _states_increments(dt, ddelta, arm_ratio, tau):
+    # w = L(alpha) (arm_ratio ddelta phi(x)), x = dt/tau; shapes (n, 1), (n, 1), (1, N), (1, N)
     _, alpha, phi = _increments(dt, tau)
-    return _recurrence(alpha, ratio * ddelta * phi)
+    return _recurrence(alpha, arm_ratio * ddelta * phi)
 
 
 def _states_increments_jvp(primals, tangents):
@@ -166,14 +168,14 @@ def _states_increments_jvp(primals, tangents):
     linear map. Tangents of the sampling (`dt`, `ddelta`: a differentiated displacement
     history) need their own scan and only run when present.
     """
-    dt, ddelta, ratio, tau = primals
+    dt, ddelta, arm_ratio, tau = primals
     t_dt, t_ddelta, t_ratio, t_tau = tangents
     x, alpha, phi = _increments(dt, tau)
     u = _recurrence(alpha, ddelta * phi)
-    w = ratio * u
+    w = arm_ratio * u
     w_prev = jnp.concatenate([jnp.zeros_like(w[:1]), w[:-1]])
     dphi = _dphi(x)
-    q = x * (alpha * w_prev - ratio * ddelta * dphi) / tau
+    q = x * (alpha * w_prev - arm_ratio * ddelta * dphi) / tau
     v = _recurrence(alpha, q)
     zero = lambda t: isinstance(t, SymbolicZero)  # noqa: E731
     dw = jnp.zeros_like(w)
@@ -185,9 +187,9 @@ def _states_increments_jvp(primals, tangents):
         # dw = L(alpha) (dbeta + dalpha w_prev) for the sampling's own tangents
         forcing = jnp.zeros_like(w)
         if not zero(t_ddelta):
-            forcing = forcing + ratio * t_ddelta * phi
+            forcing = forcing + arm_ratio * t_ddelta * phi
         if not zero(t_dt):
-            forcing = forcing + (ratio * ddelta * dphi - alpha * w_prev) * (t_dt / tau)
+            forcing = forcing + (arm_ratio * ddelta * dphi - alpha * w_prev) * (t_dt / tau)
         dw = dw + _recurrence(alpha, forcing)
     return w, dw
 
@@ -195,14 +197,15 @@ def _states_increments_jvp(primals, tangents):
 _states_increments.defjvp(_states_increments_jvp, symbolic_zeros=True)
 
 
-def _states_samples(ts, delta, ratio, tau):
+def _states_samples(ts, delta, arm_ratio, tau):
     # exact update over each interval, the first sample responding as a step from rest
     dt = jnp.diff(ts, prepend=ts[:1])[:, None]
     ddelta = jnp.diff(delta, prepend=0.0)[:, None]
-    return _states_increments(dt, ddelta, ratio, tau)
+    # all four of rank 2: (n, 1), (n, 1), (1, N), (1, N)
+    return _states_increments(dt, ddelta, arm_ratio[None, :], tau[None, :])
 
 
-def _states_diffrax(method, ts, velocity, delta, ratio, tau):
+def _states_diffrax(method, ts, velocity, delta, arm_ratio, tau):
     if delta is None:
         t0 = jnp.zeros_like(ts[0])
         y0 = jnp.zeros_like(tau)
@@ -213,7 +216,7 @@ def _states_diffrax(method, ts, velocity, delta, ratio, tau):
         jump_ts = None
     else:
         t0 = ts[0]
-        y0 = ratio * delta[0]
+        y0 = arm_ratio * delta[0]
         path = diffrax.LinearInterpolation(ts=ts, ys=delta)
 
         def rate(t):
@@ -222,7 +225,7 @@ def _states_diffrax(method, ts, velocity, delta, ratio, tau):
         jump_ts = ts
 
     def vector_field(t, w, args):
-        return ratio * rate(t) - w / tau
+        return arm_ratio * rate(t) - w / tau
 
     controller = diffrax.PIDController(rtol=method.rtol, atol=method.atol)
     if jump_ts is not None:
@@ -244,11 +247,11 @@ def _states_diffrax(method, ts, velocity, delta, ratio, tau):
     return sol.ys, ok, sol.stats
 
 
-def _segment_deff(u, depth, delta_a, w_a, slope, ratio, tau, rho):
+def _segment_deff(u, depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio):
     """d_eff at time t_a + u inside a segment where d(t) is linear with `slope`."""
     e = jnp.exp(-u / tau)
-    w = w_a * e + ratio * slope * u * _phi(u / tau)
-    return depth + delta_a + slope * u + rho * jnp.sum(w)
+    w = w_a * e + arm_ratio * slope * u * _phi(u / tau)
+    return depth + delta_a + slope * u + glass_ratio * jnp.sum(w)
 
 
 def retract(
@@ -340,8 +343,8 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
              throw):
     G_inf, G, tau = _prony_arrays(rheology)
     G_g = G_inf + jnp.sum(G)
-    ratio = G / G_g
-    rho = G_g / G_inf
+    arm_ratio = G / G_g
+    glass_ratio = G_g / G_inf
     a0 = profile_radius(profile, depth) if contact_radius is None else contact_radius
 
     # ---- internal variables w_k(t_i), shape (n, N) -------------------------------------
@@ -353,15 +356,15 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     stats = {}
     if isinstance(method, ExactUpdate):
         if velocity is not None:
-            w = _states_velocity(ts, velocity, ratio, tau)
+            w = _states_velocity(ts, velocity, arm_ratio, tau)
         else:
-            w = _states_samples(ts, delta, ratio, tau)
+            w = _states_samples(ts, delta, arm_ratio, tau)
     elif isinstance(method, DiffraxODE):
         w, ode_ok, stats = _states_diffrax(
-            method, ts, velocity, None if velocity is not None else delta, ratio, tau
+            method, ts, velocity, None if velocity is not None else delta, arm_ratio, tau
         )
     d = depth + delta
-    d_eff = d + rho * jnp.sum(w, axis=-1)
+    d_eff = d + glass_ratio * jnp.sum(w, axis=-1)
 
     # ---- the front -----------------------------------------------------------------------
     c = jnp.sqrt(0.5 * jnp.pi * dgamma * G_g) / G_inf
@@ -425,14 +428,13 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     span = ts[i_j] - t_a
     seg_ok = detached & (span > 0)
     # on lanes without a bracketing segment, solve a harmless stand-in problem
-    h_target = jnp.where(
-        seg_ok, h_crit, 0.5 * (_segment_deff(0.0, depth, delta_a, w_a, slope, ratio, tau, rho)
-                              + _segment_deff(1.0, depth, delta_a, w_a, slope, ratio, tau, rho))
-    )
+    seg_args = (depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio)
+    h_mid = 0.5 * (_segment_deff(0.0, *seg_args) + _segment_deff(1.0, *seg_args))
+    h_target = jnp.where(seg_ok, h_crit, h_mid)
     span_safe = jnp.where(seg_ok, span, 1.0)
 
     def resid(u):
-        return _segment_deff(u, depth, delta_a, w_a, slope, ratio, tau, rho) - h_target
+        return _segment_deff(u, *seg_args) - h_target
 
     u_j = bracketed_root(resid, 0.0, span_safe, steps=64)
     t_j = jnp.where(seg_ok, t_a + u_j, ts[i_j])
@@ -460,7 +462,7 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
         force_control_radius=a_fc,
         initial_radius=a0,
         effective_displacement=d_eff,
-        effective_work_of_adhesion=dgamma * rho,
+        effective_work_of_adhesion=dgamma * glass_ratio,
     )
     return ContactSolution(
         ts=ts,

@@ -1,7 +1,7 @@
 r"""Linear viscoelastic rheologies in shear, and exact conversions between their forms.
 
 All moduli are shear moduli $G$ [Pa] of an incompressible material, so one MDR spring of
-width $\Delta x$ has stiffness $4G(t)\,\Delta x$ (PHYSICS.md §2). Times are in seconds,
+width $\Delta x$ has stiffness $4G(t)\,\Delta x$ (`docs/physics.md` §3). Times are in seconds,
 viscosities in Pa s, compliances in 1/Pa.
 
 Every linear solid with a finite glass modulus and a non-zero relaxed modulus has two
@@ -33,6 +33,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float
 
+from ._solvers import as_float
 from ._validate import check_positive
 
 # Shape-annotated aliases (kept out of annotations so that linters do not parse the strings).
@@ -56,16 +57,8 @@ __all__ = [
 # --------------------------------------------------------------------------------------
 
 
-def _as_float(x) -> Array:
-    """`jnp.asarray`, promoting integers (and bools) to the default float dtype."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.inexact):
-        x = x.astype(float)
-    return x
-
-
 def _as_float_1d(x) -> Array:
-    return jnp.atleast_1d(_as_float(x))
+    return jnp.atleast_1d(as_float(x))
 
 
 def _check_scalar(name: str, value) -> None:
@@ -90,9 +83,16 @@ def _empty_like(x) -> Array:
 
 def _exp_sum(amplitude, time, t, one_minus: bool) -> Array:
     r"""$\sum_k A_k e^{-t/T_k}$ (or $\sum_k A_k (1 - e^{-t/T_k})$), elementwise over `t`."""
-    x = -jnp.asarray(t)[..., None] / time
+    t = jnp.asarray(t)[..., None]
+    x = -t / _trailing(time, t.ndim)
     e = -jnp.expm1(x) if one_minus else jnp.exp(x)
-    return jnp.sum(amplitude * e, axis=-1)
+    return jnp.sum(_trailing(amplitude, t.ndim) * e, axis=-1)
+
+
+def _trailing(arms, ndim: int) -> Array:
+    """The per-arm vector `arms` (shape `(N,)`) as shape `(1, ..., 1, N)` of rank `ndim`
+    (explicit broadcasting against `t[..., None]`)."""
+    return jnp.reshape(arms, (1,) * (ndim - 1) + jnp.shape(arms))
 
 
 # --------------------------------------------------------------------------------------
@@ -175,7 +175,7 @@ class PronySeries(AbstractRheology):
     time gives a Kelvin element of infinite stiffness and NaN gradients).
     """
 
-    G_inf: Scalar = eqx.field(converter=_as_float)
+    G_inf: Scalar = eqx.field(converter=as_float)
     G: Arms = eqx.field(converter=_as_float_1d)
     tau: Arms = eqx.field(converter=_as_float_1d)
 
@@ -198,8 +198,9 @@ class PronySeries(AbstractRheology):
         return self.G_inf + _exp_sum(self.G, self.tau, t, one_minus=False)
 
     def complex_modulus(self, omega):
-        iwt = 1j * jnp.asarray(omega)[..., None] * self.tau
-        return self.G_inf + jnp.sum(self.G * iwt / (1 + iwt), axis=-1)
+        w = jnp.asarray(omega)[..., None]
+        iwt = 1j * w * _trailing(self.tau, w.ndim)
+        return self.G_inf + jnp.sum(_trailing(self.G, w.ndim) * iwt / (1 + iwt), axis=-1)
 
     def complex_compliance(self, omega):
         return 1.0 / self.complex_modulus(omega)
@@ -254,7 +255,7 @@ class CreepChain(AbstractRheology):
     `to_prony` needs distinct retardation times $\theta_k$ (merge equal ones first).
     """
 
-    G0: Scalar = eqx.field(converter=_as_float)
+    G0: Scalar = eqx.field(converter=as_float)
     G: Arms = eqx.field(converter=_as_float_1d)
     eta: Arms = eqx.field(converter=_as_float_1d)
 
@@ -282,8 +283,9 @@ class CreepChain(AbstractRheology):
         return 1.0 / self.G0 + _exp_sum(1.0 / self.G, self.retardation_time, t, one_minus=True)
 
     def complex_compliance(self, omega):
-        iwt = 1j * jnp.asarray(omega)[..., None] * self.retardation_time
-        return 1.0 / self.G0 + jnp.sum(1.0 / (self.G * (1 + iwt)), axis=-1)
+        w = jnp.asarray(omega)[..., None]
+        iwt = 1j * w * _trailing(self.retardation_time, w.ndim)
+        return 1.0 / self.G0 + jnp.sum(1.0 / (_trailing(self.G, w.ndim) * (1 + iwt)), axis=-1)
 
     def complex_modulus(self, omega):
         return 1.0 / self.complex_compliance(omega)
@@ -329,7 +331,7 @@ class Elastic(AbstractRheology):
     `to_prony()` / `to_creep_chain()` return forms with zero arms (shape-`(0,)` arrays).
     """
 
-    G: Scalar = eqx.field(converter=_as_float)
+    G: Scalar = eqx.field(converter=as_float)
 
     def __check_init__(self):
         _check_scalar("G", self.G)
@@ -380,9 +382,9 @@ class StandardModel(AbstractRheology):
     - `eta1`: Kelvin viscosity $\eta_1$ [Pa s], scalar, > 0.
     """
 
-    G0: Scalar = eqx.field(converter=_as_float)
-    G1: Scalar = eqx.field(converter=_as_float)
-    eta1: Scalar = eqx.field(converter=_as_float)
+    G0: Scalar = eqx.field(converter=as_float)
+    G1: Scalar = eqx.field(converter=as_float)
+    eta1: Scalar = eqx.field(converter=as_float)
 
     def __check_init__(self):
         for name in ("G0", "G1", "eta1"):

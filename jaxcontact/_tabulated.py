@@ -35,14 +35,10 @@ from jax.lax.linalg import tridiagonal_solve
 from jaxtyping import Array
 
 from ._profiles import AbstractProfile
+from ._solvers import as_float
 from ._validate import check_finite, is_concrete
 
 __all__ = ["Tabulated"]
-
-
-def _as_float_array(value) -> Array:
-    arr = jnp.asarray(value)
-    return arr.astype(jnp.result_type(arr.dtype, float))
 
 
 # ---------------------------------------------------------------------------------------
@@ -94,6 +90,12 @@ def _slope_coefficients(r: Array, f: Array):
 # ---------------------------------------------------------------------------------------
 
 
+def _per_piece(v: Array, ax: Array) -> Array:
+    """A per-node or per-piece vector `v` (shape `(m,)`) as shape `(1, ..., 1, m)`, of the
+    rank of `ax[..., None]` (explicit broadcasting)."""
+    return jnp.reshape(v, (1,) * jnp.ndim(ax) + jnp.shape(v))
+
+
 def _node_functions(ax: Array, r: Array):
     r"""$u_j = \min(r_j, x)/x$, $c_j = \sqrt{1-u_j^2}$, $\theta_j = \arcsin u_j$ per node.
 
@@ -101,7 +103,7 @@ def _node_functions(ax: Array, r: Array):
     extrapolated beyond the table), so $u = 1$ there. Shapes: `ax.shape + (n,)`.
     """
     xe = ax[..., None]
-    rin = r[1:-1]
+    rin = _per_piece(r[1:-1], ax)
     cut = rin >= xe
     xs = jnp.where(xe > 0, xe, 1.0)
     # Safe in both branches (no sqrt of 0 or of a negative number under autodiff).
@@ -139,24 +141,28 @@ def _sqrt_moments(ax, r):
 def _g_raw(ax, r, A, B, C):
     dJ0, dJ1, dJ2 = _inv_sqrt_moments(ax, r)
     x = ax[..., None]
+    A, B, C = (_per_piece(v, ax) for v in (A, B, C))
     return ax * jnp.sum(A * dJ0 + x * B * dJ1 + x**2 * C * dJ2, axis=-1)
 
 
 def _dg_raw(ax, r, A, B, C):
     dJ0, dJ1, dJ2 = _inv_sqrt_moments(ax, r)
     x = ax[..., None]
+    A, B, C = (_per_piece(v, ax) for v in (A, B, C))
     return jnp.sum(A * dJ0 + 2 * x * B * dJ1 + 3 * x**2 * C * dJ2, axis=-1)
 
 
 def _d2g_raw(ax, r, A, B, C):
     _, dJ1, dJ2 = _inv_sqrt_moments(ax, r)
     x = ax[..., None]
+    A, B, C = (_per_piece(v, ax) for v in (A, B, C))
     return jnp.sum(2 * B * dJ1 + 6 * x * C * dJ2, axis=-1)
 
 
 def _ig_raw(ax, r, A, B, C):
     dP0, dP1, dP2 = _sqrt_moments(ax, r)
     x = ax[..., None]
+    A, B, C = (_per_piece(v, ax) for v in (A, B, C))
     return ax**2 * jnp.sum(A * dP0 + x * B * dP1 + x**2 * C * dP2, axis=-1)
 
 
@@ -270,8 +276,8 @@ class Tabulated(AbstractProfile):
     points gives errors of 1e-6 (`g`) and 6e-5 (`dg`), with 4000 points a few per cent.
     """
 
-    r: Array = eqx.field(converter=_as_float_array)
-    f: Array = eqx.field(converter=_as_float_array)
+    r: Array = eqx.field(converter=as_float)
+    f: Array = eqx.field(converter=as_float)
 
     def __check_init__(self):
         if self.r.ndim != 1:

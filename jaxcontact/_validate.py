@@ -11,16 +11,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-__all__ = ["as_float", "check_positive", "check_finite", "check_times", "is_concrete"]
-
-
-def as_float(x):
-    """`x` as a JAX array of floating dtype: float inputs keep their precision (so float32
-    stays float32 for GPU sweeps); integers and Python scalars become the default float."""
-    import jax.numpy as jnp
-
-    x = jnp.asarray(x)
-    return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(float)
+__all__ = ["check_positive", "check_finite", "check_times", "is_concrete"]
 
 
 def is_concrete(value) -> bool:

@@ -9,3 +9,6 @@ os.environ.setdefault("JAXCONTACT_XLA_TUNING", "0")
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+# Strict rank promotion (as diffrax's test suite): arrays of different rank never broadcast
+# implicitly; the code broadcasts explicitly.
+jax.config.update("jax_numpy_rank_promotion", "raise")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxcontact as jc
-from jaxcontact.cli import main
+from jaxcontact_cli import main
 
 BASE = [
     "simulate", "--G0", "1e6", "--G1", "2e5", "--eta1", "1e4", "--work-of-adhesion", "0.05",
@@ -79,10 +79,9 @@ def test_simulate_bad_arguments_exit_nonzero_and_write_nothing(tmp_path, capsys,
     if key in args:
         i = args.index(key)
         del args[i : i + 2]
-    with pytest.raises(SystemExit) as e:
-        main(args + change + ["--duration", "0.1", "--out", str(out)])
-    assert e.value.code == 2
-    assert name in capsys.readouterr().err
+    assert main(args + change + ["--duration", "0.1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert name in err and len(err.splitlines()) == 1 and "Traceback" not in err
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
 
@@ -221,7 +220,7 @@ def test_tune_xla_cpu():
 
     code = (
         "import os, sys\n"
-        "from jaxcontact.cli import tune_xla_cpu, XLA_CPU_FLAGS\n"
+        "from fitting import tune_xla_cpu, XLA_CPU_FLAGS\n"
         "added = tune_xla_cpu()\n"
         "import jax; jax.config.update('jax_enable_x64', True)\n"
         "import jaxcontact as jc\n"
@@ -242,7 +241,7 @@ def test_tune_xla_cpu():
 
     known = tuple(int(x) for x in jaxlib.__version__.split(".")[:2]) == (0, 10)
     added, again, flags, f_tuned = run()
-    from jaxcontact.cli import XLA_CPU_FLAGS
+    from fitting import XLA_CPU_FLAGS
 
     assert added == (list(XLA_CPU_FLAGS) if known else [])
     assert again == []  # the backend has started
@@ -252,3 +251,152 @@ def test_tune_xla_cpu():
     added, _, flags, _ = run(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
     assert added == [] and flags == "--xla_cpu_use_fusion_emitters=true"
     assert f_tuned == pytest.approx(f_default, rel=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# fit and the output policy of every command
+# --------------------------------------------------------------------------------------
+
+def _fit_csvs(tmp_path, speeds=(0.5e-6, 2e-6, 8e-6), n=60):
+    """Synthetic relaxed-start retract curves as CSV files (noiseless, known parameters)."""
+    import fitting  # noqa: F401 - the loader reads these files
+
+    files = []
+    rheology = jc.StandardModel(G0=10e3, G1=5e3, eta1=7.5e3)
+    for k, v in enumerate(speeds):
+        ts = np.linspace(0.0, 2.5e-6 / v, n)
+        sol = jc.retract(rheology, jc.Parabola(10e-6), work_of_adhesion=5e-3, depth=1e-6,
+                         ts=ts, velocity=v)
+        path = tmp_path / f"c{k}.csv"
+        np.savetxt(path, np.column_stack([ts, np.asarray(sol.displacement),
+                                          np.asarray(sol.force)]),
+                   delimiter=",", header="time_s,displacement_m,force_N", comments="")
+        files.append(str(path))
+    return files
+
+
+def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXCONTACT_CACHE", str(tmp_path / "cache"))
+    files = _fit_csvs(tmp_path)
+    out = tmp_path / "result"
+    rc = main(["fit", *files, "--radius", "10e-6", "--model", "relaxed", "--out", str(out),
+               "--quiet", "--no-figure", "--starts", "2"])
+    assert rc == 0
+    text = (out / "parameters.json").read_text()
+    table = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+    assert table["G0_Pa"]["value"] == pytest.approx(10e3, rel=0.02)
+    assert table["r_squared"] > 0.999
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (["--radius", "-1"], "--radius"),
+        (["--radius", "1e-5", "--rheology", "prony:x"], "--rheology"),
+        (["--radius", "1e-5", "--spring-constant", "1", "--model", "relaxed"],
+         "--spring-constant"),
+        (["--radius", "1e-5", "--units", "force=furlong"], "--units"),
+        (["--radius", "1e-5", "--profile", "cone:30"], "--radius"),
+        (["--profile", "cone:95"], "--profile"),
+        (["--profile", "blob:1"], "--profile"),
+        (["--radius", "1e-5", "--fix", "G0"], "--fix"),
+        (["--radius", "1e-5", "--bounds", "G0=5:1"], "--bounds"),
+        (["--radius", "1e-5", "--initial", "G0=nan"], "--initial"),
+        (["--radius", "1e-5", "--starts", "0"], "--starts"),
+        (["--radius", "1e-5", "--out", ""], "--out"),
+    ],
+)
+def test_fit_bad_input_one_line_error_and_no_files(tmp_path, capsys, extra, needle):
+    files = _fit_csvs(tmp_path, speeds=(8e-6,), n=20)
+    out = tmp_path / "out"
+    argv = ["fit", *files, *extra]
+    if "--out" not in extra:
+        argv += ["--out", str(out)]
+    rc = main(argv + ["--quiet"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "Traceback" not in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_fit_missing_or_junk_file(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["fit", str(tmp_path / "nope.csv"), "--radius", "1e-5", "--out",
+                 str(out)]) == 2
+    assert "FILE" in capsys.readouterr().err
+    junk = tmp_path / "junk.jpk-force"
+    junk.write_bytes(b"\x00\x01not a force curve" * 7)
+    rc = main(["fit", str(junk), "--radius", "1e-5", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "junk.jpk-force" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_output_folder_checked_before_work(tmp_path, capsys):
+    files = _fit_csvs(tmp_path, speeds=(8e-6,), n=20)
+    foreign = tmp_path / "notes"
+    foreign.mkdir()
+    (foreign / "mine.txt").write_text("keep me")
+    rc = main(["fit", *files, "--radius", "1e-5", "--out", str(foreign), "--quiet"])
+    assert rc == 2 and "--out" in capsys.readouterr().err
+    assert [p.name for p in foreign.iterdir()] == ["mine.txt"]
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    assert main(["fit", *files, "--radius", "1e-5", "--out", str(a_file), "--quiet"]) == 2
+    if os.geteuid() != 0:  # root may write anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        locked.chmod(0o500)
+        rc = main(["fit", *files, "--radius", "1e-5", "--out", str(locked / "o"), "--quiet"])
+        assert rc == 2 and "cannot write" in capsys.readouterr().err
+
+
+def test_output_folder_replaced_whole(tmp_path):
+    from jaxcontact_cli._common import OutputFolder
+
+    out = tmp_path / "run"
+    first = OutputFolder("--out", out, marker="a.txt")
+    stage = first.stage()
+    (stage / "a.txt").write_text("1")
+    (stage / "b.png").write_text("old figure")
+    first.commit()
+    second = OutputFolder("--out", out, marker="a.txt")  # an earlier output may be replaced
+    stage = second.stage()
+    (stage / "a.txt").write_text("2")
+    second.commit()
+    assert sorted(p.name for p in out.iterdir()) == ["a.txt"]  # no stale b.png
+    assert (out / "a.txt").read_text() == "2"
+    third = OutputFolder("--out", out, marker="a.txt")
+    stage = third.stage()
+    (stage / "a.txt").write_text("3")
+    third.discard()  # a failed run changes nothing and leaves nothing
+    assert (out / "a.txt").read_text() == "2"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_interrupt_leaves_no_files(tmp_path):
+    # SIGINT and SIGTERM during a real fit (compilation or optimisation): exit 130/143
+    # promptly, no output folder, no hidden temporary folder
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    files = _fit_csvs(tmp_path, speeds=(8e-6,), n=20)
+    for sig, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
+        out = tmp_path / f"out{code}"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "jaxcontact_cli", "fit", *files, "--radius", "1e-5",
+             "--model", "relaxed", "--out", str(out)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env={**os.environ, "JAXCONTACT_CACHE": str(tmp_path / "cache")})
+        time.sleep(4.0)  # imports done, compiling (a cold fit takes far longer)
+        proc.send_signal(sig)
+        t0 = time.perf_counter()
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == code, err
+        assert time.perf_counter() - t0 < 10.0
+        assert "interrupted" in err and "Traceback" not in err
+        assert not out.exists()
+        assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []

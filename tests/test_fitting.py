@@ -1,6 +1,5 @@
 """Tests of the fitting package: objective, optimiser, uncertainty, report, CLI."""
 
-import argparse
 import json
 import pathlib
 import warnings
@@ -265,57 +264,6 @@ def test_report_files(tmp_path):
     assert len(rows) == 5
     assert paths["figure"].stat().st_size > 1000
     assert len(res.start_losses) == 2
-
-
-def _write_csv(path, curve):
-    np.savetxt(path, np.column_stack([curve.time, curve.displacement, curve.force]),
-               delimiter=",", header="time_s,displacement_m,force_N", comments="")
-
-
-def _args(argv):
-    return fitting.add_fit_arguments(argparse.ArgumentParser()).parse_args(argv)
-
-
-def test_cli_fit_csv(tmp_path, monkeypatch):
-    monkeypatch.setenv("JAXCONTACT_CACHE", str(tmp_path / "cache"))
-    files = []
-    for k, c in enumerate(_curves()):
-        files.append(str(tmp_path / f"c{k}.csv"))
-        _write_csv(files[-1], c)
-    out = tmp_path / "result"
-    code = fitting.run_fit(_args([*files, "--radius", str(R), "--out", str(out), "--quiet",
-                                  "--no-figure", "--starts", "2"]))
-    assert code == 0
-    table = json.loads((out / "parameters.json").read_text())
-    assert table["G0_Pa"]["value"] == pytest.approx(TRUE["G0"], rel=0.02)
-    assert table["r_squared"] > 0.999
-
-
-@pytest.mark.parametrize(
-    "extra, needle",
-    [
-        (["--radius", "-1"], "--radius"),
-        (["--radius", "1e-5", "--rheology", "prony:x"], "--rheology"),
-        (["--radius", "1e-5", "--spring-constant", "1"], "--spring-constant"),
-        (["--radius", "1e-5", "--units", "force=furlong"], "--units"),
-    ],
-)
-def test_cli_bad_input(tmp_path, capsys, extra, needle):
-    f = tmp_path / "c.csv"
-    _write_csv(f, _curves(n=20, speeds=(8e-6,))[0])
-    out = tmp_path / "out"
-    code = fitting.run_fit(_args([str(f), *extra, "--out", str(out), "--quiet"]))
-    assert code != 0
-    assert needle in capsys.readouterr().err
-    assert not out.exists()
-
-
-def test_cli_missing_file(tmp_path, capsys):
-    out = tmp_path / "out"
-    code = fitting.run_fit(_args([str(tmp_path / "nope.csv"), "--radius", "1e-5",
-                                  "--out", str(out)]))
-    assert code != 0 and "FILE" in capsys.readouterr().err
-    assert not out.exists()
 
 
 def test_oocyte_history_fit():

@@ -18,13 +18,28 @@ import pathlib
 import jax
 import numpy as np
 import pytest
-from test_fitting import D0, TRUE, R, _args, _curves
+from test_fitting import D0, TRUE, R, _curves
 
 import fitting
 import jaxcontact as jc
-from fitting._cli import load_inputs
+from jaxcontact_cli import main
+from jaxcontact_cli._fit import add_fit_arguments, load_inputs
 
 DATA = pathlib.Path(__file__).parent / "data"
+
+
+def _args(argv):
+    import argparse
+
+    return add_fit_arguments(argparse.ArgumentParser()).parse_args(argv)
+
+
+def _fit_cli(argv):
+    """``jaxcontact fit`` with the relaxed model unless the arguments choose one."""
+    argv = list(argv)
+    if "--model" not in argv:
+        argv += ["--model", "relaxed"]
+    return main(["fit", *argv])
 
 
 def _relaxed_curves(lift, noise=0.0, seed=0, speeds=(1e-6, 4e-6), n=60, p=TRUE):
@@ -183,8 +198,8 @@ def test_nan_data_rejected(tmp_path, capsys):
     lines[8] = ",".join([parts[0], parts[1], "nan"])
     path.write_text("\n".join(lines) + "\n")
     out = tmp_path / "out"
-    code = fitting.run_fit(_args([str(path), "--radius", str(R), "--out", str(out),
-                                  "--quiet"]))
+    code = _fit_cli([str(path), "--radius", str(R), "--out", str(out),
+                                  "--quiet"])
     err = capsys.readouterr().err
     assert code != 0 and err.count("nan.csv") == 1, err
     assert "column 'force_N' has a non-finite value ('nan') at data row 8" in err, err
@@ -241,9 +256,9 @@ def test_cli_prony(prony_curves, tmp_path, monkeypatch):
         files.append(str(tmp_path / f"prony{k}.csv"))
         _write_csv(files[-1], c)
     out = tmp_path / "result"
-    code = fitting.run_fit(_args([*files, "--radius", str(R), "--rheology", "prony:2",
+    code = _fit_cli([*files, "--radius", str(R), "--rheology", "prony:2",
                                   "--starts", "1", "--no-figure", "--quiet", "--out",
-                                  str(out)]))
+                                  str(out)])
     assert code == 0
     table, rows = _read_outputs(out)
     assert table["rheology"] == "prony:2" and table["model"] == "relaxed"
@@ -307,7 +322,7 @@ def test_cli_spring_constant(compliant_curve, tmp_path, monkeypatch):
     argv = [str(path), "--radius", str(R), "--model", "history", "--spring-constant", str(K),
             "--cells", str(CELLS), "--starts", "1", "--no-figure", "--quiet", "--out",
             str(out)]
-    assert fitting.run_fit(_args(argv)) == 0
+    assert _fit_cli(argv) == 0
     table, rows = _read_outputs(out)
     assert table["model"] == "history"
     assert table["loading"] == {"type": "compliant", "spring_constant_N_m": [K]}
@@ -328,9 +343,9 @@ def test_cli_ibw_relaxed(tmp_path, monkeypatch, capsys):
     pytest.importorskip("afmformats")
     monkeypatch.setenv("JAXCONTACT_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "ibw"
-    code = fitting.run_fit(_args([str(DATA / "sin-force-distance.ibw"), "--radius", str(R),
+    code = _fit_cli([str(DATA / "sin-force-distance.ibw"), "--radius", str(R),
                                   "--max-samples", "60", "--starts", "1", "--out",
-                                  str(out)]))
+                                  str(out)])
     assert code == 0
     stdout = capsys.readouterr().out
     table, rows = _read_outputs(out)
@@ -374,7 +389,7 @@ def test_cli_bad_options(tmp_path, capsys, extra, needle):
     path = tmp_path / "c.csv"
     _write_csv(path, _relaxed_curves(4.5e-6, speeds=(4e-6,), n=20)[0])
     out = tmp_path / "out"
-    code = fitting.run_fit(_args([str(path), "--radius", str(R), *extra, "--out", str(out),
-                                  "--quiet"]))
+    code = _fit_cli([str(path), "--radius", str(R), *extra, "--out", str(out),
+                                  "--quiet"])
     assert code != 0 and needle in capsys.readouterr().err
     assert not out.exists()

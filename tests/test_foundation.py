@@ -17,7 +17,7 @@ import pytest
 from scipy.optimize import brentq
 
 import jaxcontact as jc
-from jaxcontact._foundation import _psi
+from jaxcontact._foundation._updates import _psi
 from jaxcontact._pulloff import DiffraxODE, retract
 
 R = 1e-3  # m

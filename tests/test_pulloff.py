@@ -27,7 +27,7 @@ def run(**kw):
 
 
 def u_g0(x, t, d0=D0, v=V):
-    """PHYSICS.md §3, the corrected eq. (24): elongation of the glass spring."""
+    """docs/physics.md §4, the corrected eq. (24): elongation of the glass spring."""
     return (G1 * (d0 - v * t - x**2 / R) - G0 * TAU * v * (1 - np.exp(-t / TAU))) / (G0 + G1)
 
 
@@ -360,9 +360,9 @@ def test_sampled_arm_states_against_sequential_recurrence():
     def sequential(ts, delta, ratio, tau):
         dt = jnp.diff(ts, prepend=ts[:1])[:, None]
         dd = jnp.diff(delta, prepend=0.0)[:, None]
-        x = dt / tau
+        x = dt / tau[None, :]  # explicit broadcasting (strict rank promotion)
         safe = jnp.where(x > 0, x, 1.0)
-        b = ratio * dd * jnp.where(x > 0, -jnp.expm1(-safe) / safe, 1.0)
+        b = ratio[None, :] * dd * jnp.where(x > 0, -jnp.expm1(-safe) / safe, 1.0)
 
         def step(w, ab):
             w = ab[0] * w + ab[1]

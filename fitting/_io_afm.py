@@ -1,0 +1,263 @@
+"""AFM instrument files through afmformats: :func:`load_afm`."""
+
+from __future__ import annotations
+
+import logging
+import math
+import pathlib
+
+import numpy as np
+
+from ._curve import DEFAULT_LIMITS, DEFAULT_SEGMENT_NAMES, Curve, DataError, Limits
+from ._preprocess import preprocess
+
+__all__ = ["load_afm"]
+
+
+_MODALITY_SEGMENTS = {
+    "force-distance": ("approach", "retract"),
+    "creep-compliance": ("approach", "hold", "retract"),
+    "stress-relaxation": ("rest", "approach", "hold", "retract"),
+}
+
+
+def load_afm(
+    path,
+    *,
+    spring_constant: float | None = None,
+    height_column: str | None = None,
+    baseline: str | None = "constant",
+    contact_point: str | None = "detect",
+    modality: str | None = None,
+    limits: Limits | None = DEFAULT_LIMITS,
+    **preprocess_kw,
+) -> list[Curve]:
+    """Load the curves of an AFM file through ``afmformats.load_data``.
+
+    Reads whatever afmformats reads (JPK ``.jpk-force``, ``.jpk-force-map``,
+    ``.jpk-qi-data``; Asylum ``.ibw``; afmformats' HDF5/tab/txt exports, ...); see
+    ``afmformats.supported_extensions``.
+
+    * Height: ``height (measured)`` (closed-loop sensor) when present, else
+      ``height (piezo)``; choose with ``height_column``. Base displacement toward the
+      sample ``u = h[0] − h`` (AFM heights decrease toward the sample).
+    * Time: the file's ``time`` column, else ``sample index / rate approach`` (Asylum
+      ``.ibw`` files carry no time column; their sample interval is 1/``NumPtsPerSec``).
+    * Segments by modality: stress-relaxation → rest, approach, hold, retract;
+      creep-compliance → approach, hold, retract; force-distance → approach, retract,
+      and a single-segment force-distance curve is split after the force maximum. An
+      Asylum ``.ibw`` stores all segments in one wave; its note's ``Indexes`` (segment
+      boundaries, sample indices) and ``Direction`` (``1`` toward the sample, ``0``
+      dwell, ``-1`` away, ``NaN`` before the first) give approach / hold / retract (and
+      rest for a zero-motion segment before the approach); without them the curve is
+      split after the force maximum. A JPK ``.jpk-force`` file names its segments in
+      each ``segment-header.properties`` (``segment-settings.style``: ``extend`` →
+      approach, ``retract`` → retract, ``pause`` → rest before the first extend, hold
+      after it); these names are used when present. A missing (empty) segment is an
+      error.
+    * Spring constant: the file's ``spring constant``. A ``spring_constant`` argument
+      overrides it and rescales the force by ``k_arg / k_file`` (the instrument measured
+      the deflection, ``F = k d``); it is only *required* when the file has none.
+    * Then :func:`preprocess` (``baseline``, ``contact_point`` and ``preprocess_kw``).
+
+    Raises:
+        ImportError: afmformats is not installed (``pip install jaxcontact[afm]``).
+        DataError: a file afmformats cannot read (unsupported, empty, truncated,
+            corrupt), unreadable data, an empty segment, NaN values, or a failed contact
+            detection (the message names the file).
+    """
+    try:
+        import afmformats
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "reading AFM files needs afmformats: pip install 'jaxcontact[afm]'"
+        ) from exc
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    afm_log = logging.getLogger("afmformats")
+    level = afm_log.level
+    afm_log.setLevel(logging.CRITICAL)  # its failed-recogniser tracebacks are not errors
+    try:
+        datasets = afmformats.load_data(path, modality=modality)
+    except (KeyboardInterrupt, SystemExit, GeneratorExit):
+        raise
+    except BaseException as exc:  # afmformats' errors derive from BaseException
+        raise DataError(
+            f"{path}: afmformats cannot read it ({type(exc).__name__}: {exc})"
+        ) from None
+    finally:
+        afm_log.setLevel(level)
+    if not datasets:
+        raise DataError(f"{path}: afmformats found no curves in the file")
+    curves = []
+    for n, ds in enumerate(datasets):
+        try:
+            curves.append(
+                _afm_curve(ds, path, spring_constant, height_column, baseline,
+                           contact_point, limits, preprocess_kw)
+            )
+        except ValueError as exc:
+            where = f"{path}" if len(datasets) == 1 else f"{path} (curve {n})"
+            raise DataError(f"{where}: {exc}") from None
+    return curves
+
+
+def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, pkw):
+    meta = dict(ds.metadata)
+    cols = list(ds.columns)
+    if height_column is None:
+        height_column = next(
+            (c for c in ("height (measured)", "height (piezo)") if c in cols), None
+        )
+        if height_column is None:
+            raise ValueError(f"no height column; the file has columns {cols}")
+    elif height_column not in cols:
+        raise ValueError(f"no column {height_column!r}; the file has columns {cols}")
+    if "force" not in cols:
+        raise ValueError(f"no force column; the file has columns {cols}")
+    h = np.asarray(ds[height_column], dtype=np.float64)
+    force = np.asarray(ds["force"], dtype=np.float64)
+    seg_raw = (np.asarray(ds["segment"], dtype=np.int64) if "segment" in cols
+               else np.zeros(len(h), dtype=np.int64))
+    if "time" in cols:
+        time = np.asarray(ds["time"], dtype=np.float64)
+    else:
+        rate = meta.get("rate approach")
+        if not rate or not math.isfinite(float(rate)) or float(rate) <= 0:
+            raise ValueError("the file has no time column and no sampling rate")
+        time = np.arange(len(h), dtype=np.float64) / float(rate)
+
+    k_file = meta.get("spring constant")
+    k_file = float(k_file) if k_file is not None and math.isfinite(float(k_file)) else None
+    if k_arg is not None:
+        k = float(k_arg)
+        if not (math.isfinite(k) and k > 0):
+            raise ValueError(f"spring_constant must be finite and > 0 [N/m], got {k}")
+        if k_file is not None:
+            force = force * (k / k_file)
+    else:
+        k = k_file
+
+    mod = meta.get("imaging mode") or ds.modality
+    expected = _MODALITY_SEGMENTS.get(mod)
+    present = np.unique(seg_raw)
+    ibw = _ibw_segments(path, len(force)) if len(present) == 1 else None
+    jpk = _jpk_segment_names(path, present) if len(present) > 1 else None
+    if ibw is not None:
+        seg, names = ibw
+    elif jpk is not None:
+        seg, names = np.searchsorted(present, seg_raw), jpk
+    elif mod == "force-distance" and len(present) == 1:
+        imax = int(np.argmax(force))
+        seg = (np.arange(len(force)) > imax).astype(np.int64)
+        names = ("approach", "retract") if imax < len(force) - 1 else ("approach",)
+        seg = np.minimum(seg, len(names) - 1)
+    elif expected is not None:
+        for j, nm in enumerate(expected):
+            if j not in present:
+                raise ValueError(f"segment {j} ({nm!r}) has no samples")
+        if present.max() >= len(expected):
+            raise ValueError(
+                f"{mod} data with {len(present)} segments; expected {expected}"
+            )
+        seg, names = seg_raw, expected
+    else:
+        seg = np.searchsorted(present, seg_raw)
+        if len(present) not in DEFAULT_SEGMENT_NAMES:
+            raise ValueError(f"cannot name {len(present)} segments of modality {mod!r}")
+        names = DEFAULT_SEGMENT_NAMES[len(present)]
+
+    meta["height column"] = height_column
+    meta["spring constant (file)"] = k_file
+    raw = Curve(
+        time=time, displacement=h[0] - h, force=force, segment=seg, segment_names=names,
+        spring_constant=k, source=str(path), metadata=meta, limits=limits,
+    )
+    if baseline in (None, "none") and contact_point in (None, "none") and k is None:
+        return raw
+    return preprocess(raw, baseline=baseline, contact_point=contact_point, **pkw)
+
+
+_IBW_DIRECTION = {1.0: "approach", 0.0: "hold", -1.0: "retract"}
+
+
+def _ibw_segments(path: pathlib.Path, n: int):
+    """Segments of an Asylum ``.ibw`` force curve from its wave note, or ``None``.
+
+    The note holds ``Indexes: 0,i1,...,n-1`` (segment ends, inclusive sample indices)
+    and ``Direction: NaN,d1,...`` (one entry per boundary; ``d_j`` is the motion of the
+    segment that ends at ``Indexes[j]``: 1 toward the sample, 0 dwell, -1 away).
+    """
+    if path.suffix != ".ibw":
+        return None
+    try:
+        from igor2 import binarywave
+    except ImportError:  # pragma: no cover - afmformats depends on igor2
+        return None
+    try:
+        note = binarywave.load(path)["wave"]["note"]
+    except Exception:  # noqa: BLE001 - unreadable note: fall back to the force maximum
+        return None
+    note = note.decode("latin-1") if isinstance(note, bytes) else str(note)
+    fields = {}
+    for line in note.replace("\\r", "\r").split("\r"):
+        if ":" in line:
+            key, val = line.split(":", 1)
+            fields[key.strip()] = val.strip()
+    try:
+        ends = [int(float(x)) for x in fields["Indexes"].strip(",").split(",")]
+        dirs = [float(x) for x in fields["Direction"].strip(",").split(",")]
+    except (KeyError, ValueError):
+        return None
+    if len(ends) < 2 or len(dirs) != len(ends) or ends[0] != 0 or ends[-1] != n - 1:
+        return None
+    if any(b <= a for a, b in zip(ends[:-1], ends[1:], strict=True)):
+        return None
+    labels: list[str] = []
+    for d in dirs[1:]:
+        if d not in _IBW_DIRECTION:
+            return None
+        labels.append(_IBW_DIRECTION[d])
+    if labels and labels[0] == "hold":
+        labels[0] = "rest"
+    seg = np.zeros(n, dtype=np.int64)
+    names: list[str] = []
+    start = 0
+    for end, lab in zip(ends[1:], labels, strict=True):
+        if not names or names[-1] != lab:
+            names.append(lab)
+        seg[start : end + 1] = len(names) - 1
+        start = end + 1
+    return seg, tuple(names)
+
+
+_JPK_STYLE = {"extend": "approach", "retract": "retract"}
+
+
+def _jpk_segment_names(path: pathlib.Path, present) -> tuple[str, ...] | None:
+    """Segment names of a single-curve ``.jpk-force`` file from its segment headers."""
+    if path.suffix != ".jpk-force":
+        return None
+    import zipfile
+
+    key = "force-segment-header.settings.segment-settings.style="
+    names: list[str] = []
+    try:
+        with zipfile.ZipFile(path) as z:
+            for j in present:
+                text = z.read(f"segments/{int(j)}/segment-header.properties")
+                style = next(
+                    (ln.split("=", 1)[1].strip()
+                     for ln in text.decode("latin-1").splitlines() if ln.startswith(key)),
+                    None,
+                )
+                if style == "pause":
+                    names.append("hold" if "approach" in names else "rest")
+                elif style in _JPK_STYLE:
+                    names.append(_JPK_STYLE[style])
+                else:
+                    return None
+    except (OSError, KeyError, zipfile.BadZipFile):
+        return None
+    return tuple(names)

@@ -1,0 +1,127 @@
+"""Reader dispatch: :func:`load_curve`."""
+
+from __future__ import annotations
+
+import pathlib
+
+from ._curve import Curve, DataError
+from ._io_afm import load_afm
+from ._io_csv import load_csv
+
+__all__ = ["load_curve", "TABLE_SUFFIXES", "supported_formats"]
+
+
+TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
+"""Suffixes read as tables by :func:`load_csv` unless an afmformats recogniser claims
+the file (e.g. an Optics11 Chiaro or NT-MDT ``.txt`` export)."""
+
+
+def _afm_recipes(suffix: str) -> list:
+    try:
+        import afmformats.formats as afm_formats
+    except ImportError:  # pragma: no cover - depends on the environment
+        return []
+    return list(afm_formats.formats_by_suffix.get(suffix, []))
+
+
+def supported_formats() -> str:
+    """A one-line description of the readable file types (extensions and formats)."""
+    parts = [f"tables {' '.join(TABLE_SUFFIXES)} (header row; see load_csv)"]
+    try:
+        import afmformats.formats as afm_formats
+    except ImportError:  # pragma: no cover - depends on the environment
+        return parts[0] + "; instrument files need afmformats"
+    for r in afm_formats.formats_available:
+        parts.append(f"{r.suffix} ({r.maker}, {r.descr})")
+    return "; ".join(parts)
+
+
+def _claimed_by_afmformats(path: pathlib.Path) -> bool:
+    """Whether an afmformats recogniser with a content check accepts ``path``."""
+    for rec in _afm_recipes(path.suffix):
+        if "detect" not in rec.recipe:
+            continue
+        try:
+            if rec.detect(path):
+                return True
+        except (KeyboardInterrupt, SystemExit, GeneratorExit):
+            raise
+        except BaseException:  # noqa: BLE001, S112 - a recogniser that fails says "no"
+            continue
+    return False
+
+
+_TABLE_ONLY = ("columns", "units", "delimiter", "segment_names")
+
+
+def _afm_options(path: pathlib.Path, kw: dict) -> dict:
+    """``kw`` without table-only options left at ``None``; others are an error."""
+    bad = [k for k in _TABLE_ONLY if kw.get(k) is not None]
+    if bad:
+        raise ValueError(
+            f"{path}: is an instrument file read through afmformats; the table options "
+            f"{bad} do not apply"
+        )
+    return {k: v for k, v in kw.items() if k not in _TABLE_ONLY}
+
+
+def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
+    """Load the curves of one file, choosing the reader from the suffix and content.
+
+    **Arguments:**
+
+    - `path`: the file.
+    - `format`: ``None`` (choose), ``"csv"`` (:func:`load_csv`) or ``"afm"``
+      (:func:`load_afm`, through afmformats).
+    - `**kw`: passed to the chosen reader (e.g. ``baseline``, ``contact_point``,
+      ``units``, ``spring_constant``).
+
+    The choice for ``format=None``: a table suffix (``.csv``, ``.tsv``, ``.txt``,
+    ``.dat``) goes to afmformats when one of its recognisers that inspects the content
+    accepts the file (Optics11 Chiaro and NT-MDT ``.txt`` exports, afmformats' own
+    exports), else to :func:`load_csv`; if the table reader fails and afmformats has a
+    reader for that suffix without a content check (AFM Workshop ``.csv``), that reader
+    is tried before the table error is raised. Any other suffix afmformats knows
+    (``.jpk-force``, ``.jpk-force-map``, ``.jpk-qi-data``, ``.ibw``, ``.h5``, ...) goes to
+    :func:`load_afm`.
+
+    **Returns:**
+
+    A list of :class:`Curve` (one per curve in the file; a table holds one).
+
+    **Raises:**
+
+    - `FileNotFoundError`: no such file.
+    - `DataError`: a file nothing reads (the message lists the supported extensions and
+      formats), or an empty, truncated or corrupt file (naming the file and the reason).
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    if format not in (None, "csv", "afm"):
+        raise ValueError(f"format must be 'csv', 'afm' or None, got {format!r}")
+    if format == "csv":
+        return [load_csv(path, **kw)]
+    if format == "afm":
+        return load_afm(path, **kw)
+    if path.stat().st_size == 0:
+        raise DataError(f"{path}: the file is empty")
+    suffix = path.suffix.lower()
+    if suffix in TABLE_SUFFIXES:
+        if _claimed_by_afmformats(path):
+            return load_afm(path, **_afm_options(path, kw))
+        try:
+            return [load_csv(path, **kw)]
+        except DataError as table_error:
+            if any("detect" not in r.recipe for r in _afm_recipes(path.suffix)):
+                try:
+                    return load_afm(path, **_afm_options(path, kw))
+                except DataError:
+                    pass
+            raise table_error from None
+    if _afm_recipes(path.suffix):
+        return load_afm(path, **kw)
+    raise DataError(
+        f"{path}: unsupported file type {path.suffix or '(no suffix)'!r}; supported: "
+        f"{supported_formats()}"
+    )

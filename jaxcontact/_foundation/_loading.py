@@ -1,0 +1,208 @@
+"""Loading systems: how the sampled input drives the indenter (`docs/physics.md` §6)."""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jaxtyping import ArrayLike, Float
+
+from .._elastic import profile_radius
+from .._root import bracketed_root
+from .._solvers import quadratic_at, quadratic_newton_form, quadratic_vertex, safe_div
+from .._validate import check_positive
+
+
+class AbstractLoading(eqx.Module):
+    """How the input history drives the indenter (`docs/physics.md` §6).
+
+    A loading system turns the sampled input into the indentation at every sample
+    (`step`), bounds the indentation the grid must cover (`grid_depth`), refines the
+    jump-off inside its step (`refine_jumpoff`) and names its own statistics (`stats`).
+    Subclasses implement all four; `simulate` calls them and never asks for the type.
+    """
+
+    @abc.abstractmethod
+    def grid_depth(self, rheology, profile, drive_max, flat: bool):
+        """Largest indentation [m] reached for inputs up to `drive_max` [m] (before the
+        grid's margin of one cell); `flat`: the profile is a flat punch."""
+
+    @abc.abstractmethod
+    def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
+        """Advance `state` (a `FoundationState` at `t0`) to `t1` for the input moving
+        linearly from `z0` to `z1` [m]. `P`: the free-relaxation propagator of the step;
+        `stiffness`: $dF/dd$ [N/m] carried from the previous sample; `depth`: the grid depth
+        [m]. Returns `(new_state, out, stiffness)` with `out` a `StepOutput`."""
+
+    @abc.abstractmethod
+    def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force):
+        """The first jump-off `(time, displacement, radius, force)` refined for this loading
+        system. `jumpoff`: that tuple and `refined` (the root under displacement control
+        bracketed the fold), from `model.refine_jumpoff(pre)`; `pre`: the `StepStart` of
+        the jump-off step (a stand-in where `safe` is False); `i_j`: its sample index;
+        `ts`, `u`, `d`, `radius`, `force`: the sampled history."""
+
+    @abc.abstractmethod
+    def stats(self, newton_failed) -> dict:
+        """Statistics of this loading system for `ContactSolution.stats`."""
+
+
+class DisplacementControl(AbstractLoading):
+    r"""Rigid loading (default): the input is the indentation $d(t)$ [m] itself."""
+
+    def grid_depth(self, rheology, profile, drive_max, flat: bool):
+        return drive_max
+
+    def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
+        new_state, out = model.step(state, t0, t1, z1, P)
+        return new_state, out, stiffness
+
+    def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force):
+        return jumpoff[:4]
+
+    def stats(self, newton_failed) -> dict:
+        return {}
+
+
+class CompliantLoading(AbstractLoading):
+    r"""A spring of stiffness $k$ between the drive and the indenter (AFM cantilever).
+
+    The input is the drive position $z(t)$ [m] (positive towards the sample, zero where the
+    undeflected indenter touches the surface); the indentation follows from
+    $k\,(z - d) = F$ (compressive $F$ positive), i.e. $d = z - F/k$. At every sample this
+    scalar equation is solved by Newton's method on the full step (differentiated
+    implicitly). The contact jumps off where its stiffness $\mathrm{d}F/\mathrm{d}d$ meets
+    $-k$ (no equilibrium connected to the current one remains); the indenter then jumps to
+    the free branch $d = z$. For $k \to \infty$ this is displacement control, for $k \to 0$
+    force control (pull-off at the minimum of $F$; for an elastic parabola the jump-off
+    force tends to $-\tfrac32\pi\Delta\gamma R$). A dead load $F(t)$ itself is not an
+    input: drive a soft spring ($k$ well below the contact stiffness $8 G a$) with
+    $z = F/k$; the applied force is then $F - k\,d$.
+
+    **Arguments:**
+
+    - `stiffness`: $k$ [N/m], > 0.
+    - `newton_steps`: Newton iterations per sample (static, default 12).
+    """
+
+    stiffness: Float[ArrayLike, ""]
+    newton_steps: int = eqx.field(static=True, default=12)
+
+    def __check_init__(self):
+        check_positive("stiffness", self.stiffness, "N/m")
+
+    def grid_depth(self, rheology, profile, drive_max, flat: bool):
+        if flat:
+            return drive_max
+        # rounded up to 1/8 of an octave, so that the grid does not move with small
+        # changes of the parameters (pass `depth` to fix it for a fit)
+        bound = _compliant_depth(rheology, profile, self.stiffness, drive_max)
+        bound = jnp.exp2(jnp.ceil(8.0 * jnp.log2(jnp.maximum(bound, 1e-300))) / 8.0)
+        return jnp.where(drive_max > 0, jnp.minimum(bound, drive_max), drive_max)
+
+    def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
+        # k (d1 - z1) + F(d1) = 0 by Newton's method (derivatives by the implicit function
+        # theorem); where it does not converge in contact the contact is taken as lost
+        k = jnp.asarray(self.stiffness, dtype=model.Gi.dtype)
+        d0 = state.depth
+
+        def f(d1):
+            return k * (d1 - z1) + model.step(state, t0, t1, d1, P)[1].force
+
+        def newton(fn, guess):
+            def body(_, x):
+                fx, dfx = jax.jvp(fn, (x,), (jnp.ones_like(x),))
+                dfx = jnp.where(dfx > 0.05 * k, dfx, k)
+                return x - fx / dfx
+
+            return lax.fori_loop(0, self.newton_steps, body, lax.stop_gradient(guess))
+
+        def tangent_solve(g, y):
+            slope = g(jnp.ones_like(y))
+            return y / jnp.where(jnp.abs(slope) > 1e-3 * k, slope, k)
+
+        guess = d0 + (z1 - z0) * k / (k + jnp.maximum(stiffness, 0.0))
+        d1 = lax.custom_root(f, guess, newton, tangent_solve)
+        f1, df1 = jax.jvp(f, (d1,), (jnp.ones_like(d1),))
+        scale = k * (jnp.abs(z1) + depth) + jnp.abs(f1 - k * (d1 - z1))
+        converged = (jnp.abs(f1) <= 1e-8 * scale) & (df1 > 0)
+        lost = jnp.logical_not(converged) & (state.radius > 0)
+        d1 = jnp.where(lost, z1, d1)
+        new_state, out = model.step(state, t0, t1, d1, P, force_detach=lost)
+        out = dataclasses.replace(
+            out, newton_failed=jnp.logical_not(converged) & jnp.logical_not(lost)
+        )
+        return new_state, out, jnp.where(converged, df1 - k, 0.0)
+
+    def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force):
+        # The instability is the fold of the drive position along the receding front: z(a)
+        # has a minimum at the critical radius (dF/dd = -k there), solved inside the step
+        # (`refine_instability`). Where the step does not bracket it (the contact was lost
+        # by a failure of Newton's method elsewhere), fit parabolas z(a), F(a) through the
+        # last three samples in contact and take the vertex.
+        j_time, j_disp, j_rad, j_force, refined = jumpoff
+        k = jnp.asarray(self.stiffness, dtype=model.Gi.dtype)
+        i_prev = jnp.maximum(i_j - 1, 0)
+        inst = model.refine_instability(pre, u[i_prev], u[i_j], k)
+        idx = jnp.maximum(i_j - jnp.arange(3, 0, -1), 0)  # i_j-3, i_j-2, i_j-1
+        a3, z3, f3 = radius[idx], u[idx], force[idx]
+        usable = (i_j >= 3) & jnp.all(a3 > 0) & (a3[0] > a3[1]) & (a3[1] > a3[2])
+
+        def parabola(y):
+            # y(a) = y2 + b (a - a2) + c (a - a2)(a - a1), Newton form (nodes a2 < a1 < a0)
+            return quadratic_newton_form(a3[2], a3[1], a3[0], y[2], y[1], y[0], usable)
+
+        bz, cz = parabola(z3)
+        ok_c = usable & (cz > 0)
+        # vertex of z(a): dz/da = b + c (2a - a2 - a1) = 0
+        a_v = quadratic_vertex(a3[2], a3[1], bz, jnp.where(ok_c, cz, 1.0))
+        ok_c = ok_c & (a_v <= a3[2]) & (a_v >= a3[2] - 3 * (a3[0] - a3[2]))
+        a_v = jnp.where(ok_c, a_v, a3[2])
+
+        def at_vertex(y):
+            b, c = parabola(y)
+            return quadratic_at(a_v, a3[2], a3[1], y[2], b, c)
+
+        z_v, f_v = at_vertex(z3), at_vertex(f3)
+        dz = u[i_j] - z3[2]
+        frac = jnp.clip(safe_div(z_v - z3[2], dz), 0.0, 1.0)
+        # an instability (no equilibrium left, the vertex) or the criterion itself (stiff
+        # spring: the refined root as under displacement control), whichever the receding
+        # front reaches first
+        use_v = ok_c & (jnp.logical_not(refined) | (a_v > j_rad))
+        j_time = jnp.where(
+            use_v, jnp.where(ok_c, ts[idx[2]] + frac * (ts[i_j] - ts[idx[2]]), ts[i_j]), j_time
+        )
+        j_rad = jnp.where(use_v, a_v, j_rad)
+        j_force = jnp.where(use_v, jnp.where(ok_c, f_v, force[idx[2]]), j_force)
+        j_disp = jnp.where(use_v, jnp.where(ok_c, z_v - f_v / k, d[idx[2]]), j_disp)
+        use_i = inst[4] & safe & (i_j >= 1)
+        return tuple(
+            jnp.where(use_i, new, old)
+            for new, old in zip(inst[:4], (j_time, j_disp, j_rad, j_force), strict=True)
+        )
+
+    def stats(self, newton_failed) -> dict:
+        return dict(newton_failures=jnp.sum(newton_failed))
+
+
+def _compliant_depth(rheology, profile, stiffness, z_max):
+    r"""Largest indentation reachable through a spring $k$ driven to `z_max` [m].
+
+    On a touch-rule loading branch the viscoelastic force is at least the relaxed one,
+    $F \ge F_\infty(d) = 8G_\infty(a d - \int_0^a g)$ with $g(a) = d$, so the indentation
+    never exceeds the root of $d + F_\infty(d)/k = z_\max$.
+    """
+    G_inf = jnp.asarray(rheology.to_prony().G_inf, dtype=float)
+    k = jnp.asarray(stiffness, dtype=float)
+
+    def resid(d):
+        a = profile_radius(profile, d)
+        return d + 8.0 * G_inf * (a * d - profile.integral_g(a)) / k - z_max
+
+    root = bracketed_root(resid, 0.0 * z_max, z_max, steps=80)
+    return jnp.where(z_max > 0, root, z_max)

@@ -1,0 +1,325 @@
+"""The foundation model: constants, cells of the attached side, criterion, one step."""
+
+from __future__ import annotations
+
+import diffrax
+import jax.numpy as jnp
+from jax import lax
+
+from .._pulloff import DiffraxODE
+from .._solvers import (
+    safe_div,
+)
+from ._geometry import _Geometry
+from ._state import Cells, FoundationState, StepOutput
+from ._updates import _attached_update, _concave_root
+
+_ROOT_STEPS = 16
+
+
+class _ModelCore:
+    """Constants of one simulation (closed over inside the traced function)."""
+
+    def __init__(self, rheology, profile, work_of_adhesion, x_nodes, method):
+        prony = rheology.to_prony()
+        Gi = jnp.asarray(prony.G_inf, dtype=float)
+        Gk = jnp.atleast_1d(jnp.asarray(prony.G, dtype=float))
+        tau = jnp.atleast_1d(jnp.asarray(prony.tau, dtype=float))
+        if Gk.shape[0] == 0:  # elastic: one inert arm keeps the shapes non-empty
+            Gk = jnp.zeros((1,), dtype=Gi.dtype)
+            tau = jnp.ones((1,), dtype=Gi.dtype)
+        self.Gi, self.Gk, self.tau = Gi, Gk, tau
+        self.Gg = Gi + jnp.sum(Gk)
+        self.arm_ratio = Gk / self.Gg
+        self.A = (self.arm_ratio[None, :] - jnp.eye(Gk.shape[0], dtype=Gi.dtype)) / tau[:, None]
+        self.c = jnp.sqrt(8.0 * jnp.pi * jnp.asarray(work_of_adhesion, dtype=float) * self.Gg)
+        self.geo = _Geometry(profile)
+        # the elastic part of beta: 4 G_inf g(x) (absent for the flat punch, where g = 0)
+        self.Gi_g = jnp.zeros_like(Gi) if self.geo.flat else Gi
+        self.x = x_nodes
+        self.n_nodes = x_nodes.shape[0]
+        self.L = x_nodes[-1]
+        self.gx = self.geo.g(x_nodes)
+        self.zx = self.geo.zeta(x_nodes)
+        self.Zx = self.geo.zeta_integral(x_nodes)
+        self.sqrt_x = jnp.sqrt(x_nodes)
+        inf = jnp.full((1,), jnp.inf, dtype=x_nodes.dtype)
+        self.x_next = jnp.concatenate([x_nodes[1:], inf])
+        self.z_next = jnp.concatenate([self.zx[1:], self.zx[-1:]])
+        self.Z_next = jnp.concatenate([self.Zx[1:], self.Zx[-1:]])
+        self.method = method
+
+    def free_propagator(self, h):
+        r"""$e^{A h}$ for the load-free springs, shape (len(h), N, N).
+
+        $A = \mathrm{diag}(1/\tau)(\mathbf 1\rho^\top - I)$ is similar to the symmetric
+        $B = y y^\top - \mathrm{diag}(1/\tau)$, $y_k = \sqrt{\rho_k/\tau_k}$, through
+        $S = \mathrm{diag}(\sqrt{\rho_k\tau_k})$, so $e^{Ah} = S^{-1} Q e^{\Lambda h} Q^\top S$
+        with one symmetric eigenproblem (its eigenvalues are minus the retardation rates).
+        """
+        if self.Gk.shape[0] == 1:
+            return jnp.exp(self.A[None] * h[:, None, None])
+        y = jnp.sqrt(self.arm_ratio / self.tau)
+        lam, Q = jnp.linalg.eigh(y[:, None] * y[None, :] - jnp.diag(1.0 / self.tau))
+        sig = jnp.sqrt(self.arm_ratio * self.tau)
+        P = jnp.einsum("km,im,jm->ikj", Q, jnp.exp(lam[None, :] * h[:, None]), Q)
+        return P * (sig[None, None, :] / sig[None, :, None])
+
+    # ---- line load and criterion ----------------------------------------------------------
+
+    def sqrt(self, x):
+        return jnp.sqrt(jnp.maximum(x, 0.0))
+
+    # ---- attached side: cells [x_j, min(x_{j+1}, a)] ----------------------------------------
+
+    def attached_cells(self, V, vf, a, d):
+        r"""Linear-in-zeta representation of $s = v + g$ on the contact side.
+
+        Cell $j$ is $[x_j, \min(x_{j+1}, a)]$ (valid where $x_j < a$); inside it
+        $R(x) = \alpha_j - \beta_j\zeta(x) + c\sqrt{x}$. Returns the per-cell arrays as
+        `Cells`.
+        """
+        x = self.x
+        s_nodes = V + self.gx[:, None]
+        s_next = jnp.concatenate([s_nodes[1:], s_nodes[-1:]], axis=0)
+        s_front = vf + self.geo.g(a)
+        valid = x < a
+        up_node = self.x_next < a
+        x_hi = jnp.where(up_node, self.x_next, a)
+        z_hi = jnp.where(up_node, self.z_next, self.geo.zeta(a))
+        s_hi = jnp.where(up_node[:, None], s_next, s_front[None, :])
+        dz = z_hi - self.zx
+        slope = safe_div(s_hi - s_nodes, dz[:, None])
+        Gs = s_nodes @ self.Gk
+        Gm = slope @ self.Gk
+        alpha = 4.0 * (self.Gg * d - Gs + Gm * self.zx)
+        beta = 4.0 * (self.Gi_g + Gm)
+        R_nodes = 4.0 * (self.Gg * d - self.Gi_g * self.zx - Gs) + self.c * self.sqrt_x
+        return Cells(
+            valid=valid, up_node=up_node, x_lo=x, x_hi=x_hi, z_lo=self.zx, z_hi=z_hi, dz=dz,
+            s_lo=s_nodes, s_hi=s_hi, slope=slope, alpha=alpha, beta=beta, R_nodes=R_nodes,
+        )
+
+    def cell_R(self, x, alpha, beta):
+        return alpha - beta * self.geo.zeta(x) + self.c * self.sqrt(x)
+
+    def force(self, V, vf, a, d):
+        r"""$F = 8[G_g a d - G_\infty\int_0^a g - \sum_k G_k\int_0^a s_k]$ [N]."""
+        x = self.x
+        Gs = (V + self.gx[:, None]) @ self.Gk
+        Gs_next = jnp.concatenate([Gs[1:], Gs[-1:]])
+        Gs_front = jnp.sum(self.Gk * (vf + self.geo.g(a)))
+        valid = x < a
+        up_node = self.x_next < a
+        h = jnp.where(valid, jnp.where(up_node, self.x_next, a) - x, 0.0)
+        dz = jnp.where(valid, jnp.where(up_node, self.z_next, self.geo.zeta(a)) - self.zx, 0.0)
+        Z_hi = jnp.where(up_node, self.Z_next, self.geo.zeta_integral(a))
+        num = jnp.where(valid, Z_hi - self.Zx - self.zx * h, 0.0)
+        w = jnp.where(dz > 0, num / jnp.where(dz > 0, dz, 1.0), 0.5 * h)
+        Gs_hi = jnp.where(up_node, Gs_next, Gs_front)
+        int_Gs = jnp.sum(jnp.where(valid, Gs * h + (Gs_hi - Gs) * w, 0.0))
+        return 8.0 * (self.Gg * a * d - self.Gi * self.geo.integral_g(a) - int_Gs)
+
+    def max_criterion(self, cells, a):
+        """Largest value of R on [0, a] (concave R per cell assumed) and where it is.
+
+        Returns (R_max, x_max, cell index of x_max); R_max carries gradients (envelope
+        theorem), x_max does not.
+        """
+        valid = cells.valid
+        R_nodes = jnp.where(valid, cells.R_nodes, -jnp.inf)
+        m = jnp.maximum(jnp.sum(valid) - 1, 0)  # last contact node; its cell ends at the front
+        R_front = self.cell_R(a, cells.alpha[m], cells.beta[m])
+        j_star = jnp.argmax(R_nodes)
+        at_front = R_front >= R_nodes[j_star]
+        c1 = jnp.where(at_front, m, jnp.maximum(j_star - 1, 0))
+        c2 = jnp.where(at_front, m, j_star)
+
+        def cell_max(j):
+            lo, hi = cells.x_lo[j], cells.x_hi[j]
+            al, be = cells.alpha[j], cells.beta[j]
+            q = safe_div(self.c, 2.0 * be, jnp.inf)
+            xs = jnp.where(be > 0, self.geo.stationary(jnp.where(be > 0, q, 1.0), lo, hi), hi)
+            cand = lax.stop_gradient(jnp.stack([lo, hi, xs]))
+            vals = self.cell_R(cand, al, be)
+            i = jnp.argmax(vals)
+            return vals[i], cand[i]
+
+        r1, x1 = cell_max(c1)
+        r2, x2 = cell_max(c2)
+        take2 = r2 >= r1
+        return jnp.where(take2, r2, r1), jnp.where(take2, x2, x1), jnp.where(take2, c2, c1)
+
+    # ---- propagation over one step ------------------------------------------------------------
+
+    def propagate(self, Vp, gp, t0, t1, d0, d1, P):
+        """Attached and free evolution of all points over the full step.
+
+        `Vp`: (p, N) states, `gp`: (p,) g at the points. Returns (V_att, V_free, ok).
+        """
+        dt = t1 - t0
+        if isinstance(self.method, DiffraxODE):
+            return self._propagate_diffrax(Vp, gp, t0, t1, d0, d1)
+        V_att = _attached_update(Vp, d0 - gp, d1 - d0, dt, self.tau)
+        V_free = Vp @ P.T
+        return V_att, V_free, jnp.asarray(True)
+
+    def _propagate_diffrax(self, Vp, gp, t0, t1, d0, d1):
+        method = self.method
+        dt = t1 - t0
+        rate = safe_div(d1 - d0, dt)
+        tau, A = self.tau, self.A
+        has_span = dt > 0
+
+        def field(t, y, args):
+            va, vf = y
+            d = d0 + rate * (t - t0)
+            return ((d - gp)[:, None] - va) / tau[None, :], vf @ A.T
+
+        # a zero-length step (instantaneous jump of d) leaves the dashpots unchanged
+        t1_safe = jnp.where(has_span, t1, t0 + 1.0)
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(field),
+            method.solver,
+            t0=t0,
+            t1=t1_safe,
+            dt0=None,
+            y0=(Vp, Vp),
+            saveat=diffrax.SaveAt(t1=True),
+            stepsize_controller=diffrax.PIDController(rtol=method.rtol, atol=method.atol),
+            max_steps=method.max_steps,
+            throw=False,
+        )
+        va, vf = sol.ys
+        va = jnp.where(has_span, va[0], Vp)
+        vf = jnp.where(has_span, vf[0], Vp)
+        ok = (sol.result == diffrax.RESULTS.successful) | jnp.logical_not(has_span)
+        return va, vf, ok
+
+    # ---- one step -------------------------------------------------------------------------------
+
+    def step(self, state, t0, t1, d1, P, force_detach=False):
+        r"""Advance the foundation from `state` (at t0) to t1 with $d$ linear to `d1`.
+
+        `state`: a `FoundationState`. Returns `(new_state, out)`, a `FoundationState` at t1
+        and a `StepOutput`.
+        """
+        V, E, a, d0 = state.nodes, state.edge, state.radius, state.depth
+        vf = E[0]
+        x, gx, arm_ratio = self.x, self.gx, self.arm_ratio
+        dt = t1 - t0
+        dd = d1 - d0
+        ga = self.geo.g(a)
+        Vp = jnp.concatenate([V, E], axis=0)
+        gp = jnp.concatenate([gx, ga[None], ga[None]])
+        Vp_att, Vp_free, ok = self.propagate(Vp, gp, t0, t1, d0, d1, P)
+        V_att, vf_att = Vp_att[:-2], Vp_att[-2]
+        V_free, vf_free = Vp_free[:-2], Vp_free[-1]
+        # when out of contact the edge sits at x = 0 and carries node 0's state
+        vf_free = jnp.where(a > 0, vf_free, V_free[0])
+
+        in_contact = a > 0
+        q_edge = 4.0 * (self.Gg * (d1 - ga) - jnp.sum(self.Gk * vf_att))
+        R_edge = q_edge + self.c * self.sqrt(a)
+        phi_edge = d1 - ga - jnp.sum(arm_ratio * vf_free)
+        recede = in_contact & ((R_edge < 0) | force_detach)
+        advance = jnp.logical_not(recede) & (phi_edge > 0) & (a < self.L)
+        branch = jnp.where(recede, 2, jnp.where(advance, 1, 0))
+
+        def pinned(_):
+            V_new = jnp.where((x < a)[:, None], V_att, V_free)
+            E_new = jnp.stack([jnp.where(in_contact, vf_att, V_free[0]), vf_free])
+            nan = jnp.asarray(jnp.nan, dtype=a.dtype)
+            return V_new, E_new, a, jnp.asarray(False), nan, jnp.asarray(False)
+
+        def advancing(_):
+            # free side: cells [max(x_j, a), x_{j+1}] for x_{j+1} > a, v linear in zeta
+            x_lo_n, x_hi_n = x[:-1], x[1:]
+            beyond = x_lo_n > a
+            x_lo = jnp.where(beyond, x_lo_n, a)
+            z_lo = jnp.where(beyond, self.zx[:-1], self.geo.zeta(a))
+            z_hi = self.zx[1:]
+            v_lo = jnp.where(beyond[:, None], V_free[:-1], vf_free[None, :])
+            v_hi = V_free[1:]
+            phi_nodes = d1 - gx - V_free @ arm_ratio
+            phi_lo = jnp.where(beyond, phi_nodes[:-1], phi_edge)
+            phi_hi = phi_nodes[1:]
+            stop = (x_hi_n > a) & (phi_hi < 0)
+            exists = jnp.any(stop)
+            j = jnp.argmax(stop)
+            frac = safe_div(phi_lo[j], phi_lo[j] - phi_hi[j])
+            frac = jnp.clip(jnp.where(exists, frac, 1.0), 0.0, 1.0)
+            z_star = z_lo[j] + frac * (z_hi[j] - z_lo[j])
+            a_root = self.geo.zeta_inverse(z_star, x_lo[j], x_hi_n[j])
+            a_new = jnp.where(exists, a_root, self.L)
+            # springs touched during the step: free until theta, attached afterwards
+            phi0 = d0 - gx - V @ arm_ratio
+            theta = jnp.where(phi0 >= 0, 0.0, jnp.clip(safe_div(phi0, phi0 - phi_nodes), 0, 1))
+            v_theta = V + theta[:, None] * (V_free - V)
+            V_touch = _attached_update(
+                v_theta, d0 + theta * dd - gx, (1 - theta) * dd, (1 - theta) * dt, self.tau
+            )
+            V_new = jnp.where(
+                (x < a)[:, None], V_att, jnp.where((x < a_new)[:, None], V_touch, V_free)
+            )
+            # the contact covers the whole grid (the flat punch): the edge is the last node
+            vf_new = jnp.where(exists, v_lo[j] + frac * (v_hi[j] - v_lo[j]), V_touch[-1])
+            nan = jnp.asarray(jnp.nan, dtype=a.dtype)
+            E_new = jnp.stack([vf_new, vf_new])
+            return V_new, E_new, a_new, jnp.asarray(False), nan, jnp.logical_not(exists)
+
+        def receding(_):
+            cells = self.attached_cells(V_att, vf_att, a, d1)
+            R_max, x_max, c_max = self.max_criterion(cells, a)
+            valid = cells.valid
+            ok_nodes = valid & (cells.R_nodes >= 0)
+            idx = jnp.arange(self.n_nodes)
+            m_R = jnp.max(jnp.where(ok_nodes, idx, -1))
+            x_mR = jnp.where(m_R >= 0, x[jnp.maximum(m_R, 0)], -jnp.inf)
+            use_xmax = (R_max >= 0) & (x_max > x_mR)
+            cell = jnp.where(use_xmax, c_max, jnp.maximum(m_R, 0))
+            lo = jnp.where(use_xmax, x_max, x_mR)
+            hi = cells.x_hi[cell]
+            jump = (R_max < 0) | force_detach
+            lo = jnp.where(jump, 0.25 * a, lo)
+            hi = jnp.where(jump, 0.75 * a, hi)
+            al, be = cells.alpha[cell], cells.beta[cell]
+            mid = 0.5 * (lo + hi)
+
+            def resid(xx):
+                # a harmless stand-in on lanes that jump off (finite derivative for the
+                # implicit-function tangent)
+                return jnp.where(jump, xx - mid, self.cell_R(xx, al, be))
+
+            root = _concave_root(resid, lo, hi, steps=_ROOT_STEPS)
+            a_new = jnp.where(jump, 0.0, root)
+            s_edge = cells.s_lo[cell] + cells.slope[cell] * (
+                self.geo.zeta(root) - cells.z_lo[cell]
+            )
+            # springs released during the step: attached until theta, free afterwards.
+            # Jump-off: theta from the edge criterion at t0 and max R at t1 (linear in time).
+            R0 = 4.0 * (self.Gg * (d0 - ga) - jnp.sum(self.Gk * vf)) + self.c * self.sqrt(a)
+            theta_jump = jnp.clip(safe_div(R0, R0 - R_max, 1.0), 0.0, 1.0)
+            theta_jump = jnp.where(jump, theta_jump, jnp.nan)
+            theta_front = jnp.clip(safe_div(a - x, a - a_new, 1.0), 0.0, 1.0)
+            theta = jnp.where(jump, theta_jump, theta_front)
+            theta = jnp.where(jnp.isfinite(theta), theta, 1.0)
+            v_theta = _attached_update(V, d0 - gx, theta * dd, theta * dt, self.tau)
+            V_rel = v_theta + (1 - theta)[:, None] * (v_theta @ P.T - v_theta)
+            V_new = jnp.where(
+                (x < a_new)[:, None], V_att, jnp.where((x < a)[:, None], V_rel, V_free)
+            )
+            vf_new = jnp.where(jump, V_new[0], s_edge - self.geo.g(root))
+            E_new = jnp.stack([vf_new, vf_new])
+            return V_new, E_new, a_new, jump, theta_jump, jnp.asarray(False)
+
+        V_new, E_new, a_new, jumped, theta_jump, overflow = lax.switch(
+            branch, (pinned, advancing, receding), None
+        )
+        F = jnp.where(a_new > 0, self.force(V_new, E_new[0], a_new, d1), 0.0)
+        out = StepOutput(
+            force=F, radius=a_new, jumped=jumped, theta_jump=theta_jump,
+            ok=ok, overflow=overflow & jnp.logical_not(jnp.asarray(self.geo.flat)),
+            newton_failed=jnp.asarray(False),
+        )
+        return FoundationState(nodes=V_new, edge=E_new, radius=a_new, depth=d1), out

@@ -1,0 +1,224 @@
+"""``jaxcontact fit FILE [FILE ...] (--radius M | --profile SHAPE) --out DIR``.
+
+Instrument files are read through afmformats (:func:`fitting.load_curve` decides by the
+file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-constant`` given
+with an instrument file overrides the file's value and selects the compliant loading model.
+
+Order of work: every argument and input file is checked, the output folder is checked
+(it must be new, empty, or an earlier fit output: it is replaced, never mixed), the fit
+runs, and the report (``parameters.json``, ``parameters.csv``, ``fit.png``)
+is written into a temporary folder beside ``DIR`` and renamed into place: a failed or
+interrupted run leaves no file and no stale file. A fit that did not converge is written
+(marked ``"converged": false``) and exits with status 1. JAX's persistent compilation
+cache (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``) spares a second run the
+compile.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import sys
+
+from ._common import (
+    OutputFolder,
+    UsageError,
+    check_number,
+    parse_assignments,
+    parse_profile,
+)
+
+__all__ = ["add_parser", "add_fit_arguments", "load_inputs", "run"]
+
+
+def add_parser(sub, common) -> None:
+    p = sub.add_parser("fit", parents=[common],
+                       help="identify the rheology and the work of adhesion from force curves")
+    add_fit_arguments(p)
+    p.set_defaults(func=run)
+
+
+def add_fit_arguments(parser):
+    """Add the ``fit`` options to `parser` (an argparse parser)."""
+    parser.add_argument("files", nargs="+", metavar="FILE",
+                        help="curves: CSV/TSV (time_s,displacement_m,force_N; units in the "
+                             "header or --units) or AFM instrument files (afmformats)")
+    parser.add_argument("--radius", type=float, default=None, metavar="M",
+                        help="radius of curvature of a spherical (parabolic) indenter [m]; "
+                             "same as --profile sphere:M")
+    parser.add_argument("--profile", default=None, metavar="SHAPE",
+                        help="indenter: sphere:R [m], cone:DEG (half-opening angle, degrees), "
+                             "flat:A (punch radius [m]) or power:C,N (f = C r^N)")
+    parser.add_argument("--model", choices=("relaxed", "history"), default="history",
+                        help="history: the whole approach-hold-lift (default); relaxed: the "
+                             "retract after a hold long enough to relax")
+    parser.add_argument("--rheology", default="standard", metavar="standard|prony:N|auto",
+                        help="standard model (G0 [Pa], G1 [Pa], eta1 [Pa s]), Prony series "
+                             "with N arms (G_inf, G_k [Pa], tau_k [s]), or auto: standard and "
+                             "prony:1..3, chosen by BIC")
+    parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                        help="hold a parameter at a value (SI units; repeatable), e.g. "
+                             "--fix work_of_adhesion=0.01")
+    parser.add_argument("--bounds", action="append", default=[], metavar="NAME=LO:HI",
+                        help="bounds of a parameter (SI units; repeatable), e.g. "
+                             "--bounds eta1=1:1e4")
+    parser.add_argument("--initial", action="append", default=[], metavar="NAME=VALUE",
+                        help="initial value of a parameter (SI units; repeatable)")
+    parser.add_argument("--contact-point", choices=("detect", "fit", "none"), default=None,
+                        help="detect: use the detected contact point; fit: detect, then fit an "
+                             "indentation offset [m] (default for instrument files); none: the "
+                             "data are indentation already (0 at contact)")
+    parser.add_argument("--force-offset", action="store_true",
+                        help="also fit a force offset [N] (a baseline error)")
+    parser.add_argument("--baseline", choices=("constant", "linear", "none"), default=None,
+                        help="force baseline removed before the fit: constant (the loader's "
+                             "default), linear (drift in time), none")
+    parser.add_argument("--segments", default=None, metavar="NAME,...",
+                        help="segments to fit, e.g. approach,hold,retract (default: all that "
+                             "the model uses)")
+    parser.add_argument("--spring-constant", type=float, default=None, metavar="N_M",
+                        help="cantilever stiffness [N/m]: compliant loading (history model); "
+                             "overrides the spring constant of an instrument file")
+    parser.add_argument("--cells", type=int, default=32, metavar="N",
+                        help="foundation grid cells of the history model (default 32)")
+    parser.add_argument("--units", default=None, metavar="ROLE=UNIT,...",
+                        help="units of CSV columns without units, e.g. "
+                             "'displacement=nm,force=nN'")
+    parser.add_argument("--starts", type=int, default=None, metavar="N",
+                        help="number of starts of the global search (default: the library's, "
+                             "see fitting.fit)")
+    parser.add_argument("--max-samples", type=int, default=None, metavar="N",
+                        help="resample each segment to at most N samples (default: the "
+                             "library's)")
+    parser.add_argument("--no-figure", action="store_true", help="skip fit.png")
+    parser.add_argument("--quiet", action="store_true", help="no progress display")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    return parser
+
+
+def _enable_cache():
+    import jax
+
+    cache = os.environ.get("JAXCONTACT_CACHE") or str(
+        pathlib.Path.home() / ".cache" / "jaxcontact" / "jax")
+    try:
+        pathlib.Path(cache).mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    except Exception:  # noqa: BLE001 - the cache is an optimisation only
+        pass
+
+
+def load_inputs(args) -> list:
+    """The curves of ``args.files``; raises `UsageError` naming the option or the file."""
+    import fitting
+
+    if args.units is not None:
+        try:
+            fitting.parse_units(args.units)
+        except ValueError as exc:
+            raise UsageError(f"argument --units: {exc}") from None
+    options = {}
+    if args.baseline is not None:
+        options["baseline"] = args.baseline
+    if args.contact_point == "none":
+        options["contact_point"] = "none"
+    curves = []
+    for f in args.files:
+        p = pathlib.Path(f)
+        if not p.is_file():
+            raise UsageError(f"FILE {f}: no such file")
+        if args.units is not None:
+            options["units"] = args.units
+        try:
+            loaded = fitting.load_curve(p, spring_constant=args.spring_constant, **options)
+        except TypeError:
+            raise UsageError(f"argument --units: {f} is not a table (CSV/TSV); its units "
+                             "come from the file") from None
+        except (ValueError, ImportError, OSError) as exc:
+            msg = " ".join(str(exc).split())
+            for prefix in (f"{p}: ", f"{f}: "):  # the loaders name the file already
+                msg = msg.removeprefix(prefix)
+            raise UsageError(f"FILE {f}: {msg}") from None
+        if args.segments:
+            keep = [s.strip() for s in args.segments.split(",") if s.strip()]
+            try:
+                loaded = [fitting.select_segments(c, *keep) for c in loaded]
+            except (ValueError, KeyError) as exc:
+                raise UsageError(f"argument --segments: {f}: {exc}") from None
+        curves += loaded
+    return curves
+
+
+def _check(args):
+    profile, radius = parse_profile(args.profile, args.radius)
+    check_number("--spring-constant", args.spring_constant, "N/m")
+    if args.spring_constant is not None and args.model != "history":
+        raise UsageError("argument --spring-constant: needs --model history")
+    if args.starts is not None and args.starts < 1:
+        raise UsageError(f"argument --starts: must be an integer >= 1; got {args.starts}")
+    if args.cells < 2:
+        raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
+    if args.max_samples is not None and args.max_samples < 2:
+        raise UsageError(f"argument --max-samples: must be an integer >= 2; got "
+                         f"{args.max_samples}")
+    import fitting
+
+    if args.rheology != "auto":
+        try:
+            fitting.make_spec(args.model, args.rheology)
+        except ValueError as exc:
+            raise UsageError(f"argument --rheology: {exc}") from None
+    fixed = parse_assignments("--fix", args.fix)
+    bounds = parse_assignments("--bounds", args.bounds, ranges=True)
+    initial = parse_assignments("--initial", args.initial)
+    return profile, radius, fixed, bounds, initial
+
+
+def run(args) -> int:
+    """Run a fit from parsed arguments; returns the exit status (0: converged fit)."""
+    profile, radius, fixed, bounds, initial = _check(args)
+    folder = OutputFolder("--out", args.out, marker="parameters.json")
+    curves = load_inputs(args)
+
+    _enable_cache()
+    import fitting
+
+    options = dict(model=args.model, rheology=args.rheology, fixed=fixed or None,
+                   bounds=bounds or None, initial=initial or None,
+                   spring_constant=args.spring_constant, max_samples=args.max_samples,
+                   cells=args.cells, progress=not args.quiet)
+    if args.force_offset:
+        options["force_offset"] = True
+    if args.starts is not None:
+        options["n_starts"] = args.starts
+    if args.contact_point is not None:
+        options["contact_point"] = "fit" if args.contact_point == "fit" else "fixed"
+    if radius is not None:
+        options["radius"] = radius
+    else:
+        options["profile"] = profile
+    try:
+        result = fitting.fit(curves, **options)
+    except ValueError as exc:
+        raise UsageError(" ".join(str(exc).split())) from None
+
+    staging = folder.stage()
+    try:
+        fitting.write_report(result, staging, figure=not args.no_figure)
+        out = folder.commit()
+    finally:
+        folder.discard()
+    if not args.quiet:
+        for col, v, se in zip(result.columns, result.values, result.stderr, strict=True):
+            print(f"{col:>24} = {v:.6g} ± {se:.3g}")
+        print(f"{'r_squared':>24} = {result.r_squared:.6f}")
+        print(f"{'reduced_chi2':>24} = {result.reduced_chi2:.4g}")
+        print(f"written to {out}")
+    if not result.converged:
+        reason = "; ".join(result.warnings) or "the optimiser stopped before convergence"
+        print(f"jaxcontact fit: error: the fit did not converge ({reason}); the report in "
+              f"{out} is marked \"converged\": false", file=sys.stderr)
+        return 1
+    return 0

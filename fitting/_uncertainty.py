@@ -1,9 +1,9 @@
 r"""Standard errors, correlations, identifiability and profile likelihoods.
 
 At the optimum $\hat p$ the Jacobian of the weighted residuals with respect to the free
-*natural* parameters is computed by forward-mode AD (`fitting._objective.log_jacobian`). It is evaluated as
-$J_\mathrm{rel} = \partial r/\partial\log p$ (well scaled: moduli in Pa and $\Delta\gamma$
-in J/m² differ by many decades) and converted exactly:
+*natural* parameters is computed by forward-mode AD (`fitting._objective.log_jacobian`).
+It is evaluated as $J_\mathrm{rel} = \partial r/\partial\log p$ (well scaled: moduli in
+Pa and $\Delta\gamma$ in J/m² differ by many decades) and converted exactly:
 $\mathrm{cov}(p) = s^2\,\mathrm{diag}(p)\,(J_\mathrm{rel}^\top J_\mathrm{rel})^{-1}\,
 \mathrm{diag}(p) = s^2 (J^\top J)^{-1}$, with $s^2 = \chi^2/(m - n_\mathrm{free})$ the reduced
 $\chi^2$ ($m$: force samples plus event residuals). Standard errors are the square roots of

@@ -60,3 +60,12 @@ from ._pulloff import ExactUpdate as ExactUpdate  # noqa: E402
 from ._pulloff import retract as retract  # noqa: E402
 from ._solution import RESULTS as RESULTS  # noqa: E402
 from ._solution import ContactSolution as ContactSolution  # noqa: E402
+from ._bem import BEMGrid as BEMGrid  # noqa: E402
+from ._bem import BEMSolution as BEMSolution  # noqa: E402
+from ._bem import bem_contact as bem_contact  # noqa: E402
+from ._bem import bem_heights as bem_heights  # noqa: E402
+from ._bem import bem_simulate as bem_simulate  # noqa: E402
+from ._bem import ellipsoid_heights as ellipsoid_heights  # noqa: E402
+from ._bem import love_displacement as love_displacement  # noqa: E402
+from ._bem import self_affine_heights as self_affine_heights  # noqa: E402
+from ._bem import tilted_flat_heights as tilted_flat_heights  # noqa: E402

@@ -69,3 +69,7 @@ from ._bem import ellipsoid_heights as ellipsoid_heights  # noqa: E402
 from ._bem import love_displacement as love_displacement  # noqa: E402
 from ._bem import self_affine_heights as self_affine_heights  # noqa: E402
 from ._bem import tilted_flat_heights as tilted_flat_heights  # noqa: E402
+from ._sweep import AbstractSweepModel as AbstractSweepModel  # noqa: E402
+from ._sweep import ApproachHoldLift as ApproachHoldLift  # noqa: E402
+from ._sweep import RelaxedStart as RelaxedStart  # noqa: E402
+from ._sweep import sweep as sweep  # noqa: E402

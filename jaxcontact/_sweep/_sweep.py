@@ -1,0 +1,188 @@
+r"""`sweep`: the forward model over a grid or a list of parameter sets, as a labelled dataset."""
+
+from __future__ import annotations
+
+import datetime
+
+import numpy as np
+
+from .._solution import RESULTS
+from .._version import __version__
+from ._models import AbstractSweepModel, RelaxedStart
+from ._parameters import parameter_info, parse_spec, scale_factors
+from ._run import default_precision, run_points
+
+__all__ = ["sweep", "SUMMARIES"]
+
+#: The per-point summaries of a sweep: variable name -> (scaled quantity, dimension, meaning).
+SUMMARIES = {
+    "max_tensile_force_N": ("max_tensile_force", "force",
+                            "largest tensile force: the most negative force of the history"),
+    "jumpoff_force_N": ("jumpoff_force", "force", "force just before the jump-off"),
+    "jumpoff_displacement_m": ("jumpoff_displacement", "length",
+                               "indentation at the jump-off (positive into the sample)"),
+    "jumpoff_time_s": ("jumpoff_time", "time", "time of the jump-off from the start of the lift"),
+    "jumpoff_contact_radius_m": ("jumpoff_radius", "length",
+                                 "contact radius just before the jump-off"),
+    "separation_work_J": ("separation_work", "work",
+                          "work done against the adhesive force during the lift: "
+                          "integral of max(-F, 0) (-dd) from the start of the lift to the "
+                          "jump-off (>= 0)"),
+    "lift_duration_s": ("lift_duration", "time",
+                        "simulated duration of the lift (duration_factor x the bound of the "
+                        "jump-off time)"),
+}
+_CURVES = {
+    "time_s": ("time", "time", "time from the start of the lift (negative before it)"),
+    "displacement_m": ("displacement", "length", "indentation d(t), positive into the sample"),
+    "force_N": ("force", "force", "normal force F(t), compressive positive, adhesive negative"),
+    "contact_radius_m": ("contact_radius", "length", "contact radius a(t), 0 when detached"),
+}
+_UNITS = {"force": "N", "length": "m", "time": "s", "work": "J"}
+
+
+def _status_attrs():
+    items = sorted(RESULTS._name_to_item.items(), key=lambda kv: int(kv[1]._value))
+    return dict(
+        long_name="status of the point (RESULTS code)",
+        flag_values=np.array([int(item._value) for _, item in items], dtype=np.int8),
+        flag_meanings=" ".join(name for name, _ in items),
+        description="detached and in_contact are successes (in_contact: the point did not "
+                    "detach within its lift); the others are errors, whose summaries are NaN",
+    )
+
+
+def sweep(
+    grid=None,
+    *,
+    points=None,
+    model: AbstractSweepModel = RelaxedStart(),
+    curves: bool = False,
+    precision: str | None = None,
+    chunk_size: int | None = None,
+    memory_limit: int | None = None,
+    progress: bool = True,
+):
+    r"""Run a forward model over a grid or a list of parameter sets.
+
+    **Arguments:**
+
+    - `grid`: a mapping from parameter names to values; a scalar is fixed, a 1-D array is
+      swept. The result has one dimension per swept parameter, in the order given (the
+      outer product of the swept values).
+    - `points`: instead of `grid`, a list of parameter sets (mappings with the same names) or
+      a mapping of equal-length 1-D arrays (and scalars, fixed): one dimension `point`.
+    - `model`: `RelaxedStart(...)` (default; `retract`) or `ApproachHoldLift(...)`
+      (`simulate`): the protocol, the samples per curve and how long the lift lasts
+      (`duration_factor` times a bound of the jump-off time that every point reaches; see
+      `jaxcontact._sweep._models`).
+    - `curves`: also return the full curves (`time_s`, `displacement_m`, `force_N`,
+      `contact_radius_m`, with a last dimension `sample`).
+    - `precision`: `"float32"` or `"float64"`; default float32 on accelerators, float64 on the
+      CPU. Every point is computed in its own units (depth, lift speed and relaxed modulus
+      are 1), so float32 keeps its relative accuracy at any physical scale (the measured
+      float32 error is in the README and `benchmarks/results/sweep.md`).
+    - `chunk_size`: curves per compiled call (rounded up to a multiple of the number of
+      devices); default from `memory_limit`.
+    - `memory_limit`: bytes per device a chunk may use (default: half the device memory where
+      the backend reports it, else 512 MiB).
+    - `progress`: print a progress line on stderr (process 0 only).
+
+    Parameter names (SI units; see `jaxcontact._sweep._parameters`): the material `G0`,
+    `G1`, `eta1` (standard model) or `G_inf`, `G_1`, `tau_1`, ... (Prony series; `G_inf`
+    alone: elastic); the indenter `R` (paraboloid), `half_angle` [rad] (cone) or
+    `punch_radius` (flat punch); `work_of_adhesion`, `depth`, `velocity` (lift speed); with
+    `ApproachHoldLift` also `hold` and `approach_velocity` (default `velocity`).
+
+    **Returns:** an `xarray.Dataset` with a coordinate per parameter (`units` and
+    `long_name` attributes; fixed parameters as scalar coordinates) and, per point,
+    `max_tensile_force_N`, `jumpoff_force_N`, `jumpoff_displacement_m`, `jumpoff_time_s`
+    (from the start of the lift), `jumpoff_contact_radius_m`, `separation_work_J`
+    $= \int_\mathrm{lift}\max(-F, 0)\,(-\mathrm{d}d)$ (the work done against adhesion from
+    the start of the lift to the jump-off), `lift_duration_s` and `status` (the `RESULTS`
+    code of the point as int8, the codes in its `flag_values` / `flag_meanings`: a failed
+    point has an error status and NaN summaries, and never affects the others; a point that
+    did not detach within its lift is `in_contact` with NaN jump-off values). Signs: force
+    compressive positive, adhesive negative; indentation positive into the sample. Save it
+    with `ds.to_netcdf("sweep.nc", engine="h5netcdf")`.
+
+    Runs on all devices (`jax.devices()`): the batch of each chunk is sharded over a 1-D
+    mesh; after `jax.distributed.initialize` the mesh spans every process, each computes its
+    share and every process returns the whole dataset (write it from process 0). See
+    `jaxcontact._sweep._run`.
+    """
+    import xarray as xr
+
+    if not isinstance(model, AbstractSweepModel):
+        raise TypeError(f"`model` must be RelaxedStart(...) or ApproachHoldLift(...); got "
+                        f"{model!r}.")
+    if precision is None:
+        precision = default_precision()
+    if precision not in ("float32", "float64"):
+        raise ValueError(f"`precision` must be 'float32' or 'float64'; got {precision!r}.")
+    if chunk_size is not None and (not isinstance(chunk_size, int | np.integer)
+                                   or chunk_size < 1):
+        raise ValueError(f"`chunk_size` must be a positive integer; got {chunk_size!r}.")
+    if memory_limit is not None and not memory_limit > 0:
+        raise ValueError(f"`memory_limit` [bytes] must be > 0; got {memory_limit!r}.")
+    spec = parse_spec(grid, points, required=model.required, optional=model.optional)
+
+    # ---- the points in their own units (float64) --------------------------------------------
+    v = spec.values
+    length = v["depth"]
+    modulus = spec.material.relaxed_modulus(v)
+    tref = v["depth"] / v["velocity"]
+    scaled = {n: a / scale_factors(parameter_info(n).dimension, length, modulus, tref)
+              for n, a in v.items()}
+    raw, run_info = run_points(
+        model, spec.material, spec.profile, scaled, dtype=np.dtype(precision), curves=curves,
+        chunk_size=chunk_size, memory_limit=memory_limit, progress=progress,
+    )
+    units = {"force": modulus * length**2, "length": length, "time": tref,
+             "work": modulus * length**3}
+
+    # ---- the dataset ------------------------------------------------------------------------
+    dims = spec.dims
+    status = raw["status"].astype(np.int8)
+    failed = ~np.isin(status, [int(RESULTS.detached._value), int(RESULTS.in_contact._value)])
+    coords = {}
+    for name, values in spec.coords.items():
+        info = parameter_info(name)
+        dim = name if spec.grid else "point"
+        coords[name] = (dim, values, dict(units=info.unit, long_name=info.long_name))
+    for name, (dim, values) in spec.derived.items():
+        info = parameter_info(name)
+        coords[name] = (dim, values, dict(units=info.unit, long_name=info.long_name))
+    for name, value in spec.fixed.items():
+        info = parameter_info(name)
+        coords[name] = ((), value, dict(units=info.unit, long_name=info.long_name + " (fixed)"))
+    data = {}
+    for var, (field, kind, meaning) in SUMMARIES.items():
+        x = raw[field].astype(np.float64) * units[kind]
+        x = np.where(failed, np.nan, x)
+        data[var] = (dims, x.reshape(spec.shape), dict(units=_UNITS[kind], long_name=meaning))
+    data["status"] = (dims, status.reshape(spec.shape), _status_attrs())
+    if curves:
+        for var, (field, kind, meaning) in _CURVES.items():
+            x = raw[field].astype(np.float64) * units[kind][:, None]
+            data[var] = (dims + ("sample",), x.reshape(spec.shape + (x.shape[-1],)),
+                         dict(units=_UNITS[kind], long_name=meaning))
+    attrs = dict(
+        title="jaxcontact forward sweep",
+        model=model.name,
+        model_repr=repr(model),
+        samples=int(model.samples),
+        duration_factor=float(model.duration_factor),
+        precision=precision,
+        chunk_size=int(run_info["chunk_size"]),
+        devices=int(run_info["devices"]),
+        processes=int(run_info["processes"]),
+        jaxcontact_version=__version__,
+        created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        conventions="SI units; indentation positive into the sample; force compressive "
+                    "positive, adhesive negative; moduli are shear moduli of an "
+                    "incompressible half-space",
+    )
+    if hasattr(model, "cells"):
+        attrs["cells"] = int(model.cells)
+    return xr.Dataset(data, coords=coords, attrs=attrs)

@@ -33,7 +33,7 @@ def _log(msg: str) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import _demo, _fit, _simulate
+    from . import _demo, _fit, _simulate, _sweep
 
     parser = argparse.ArgumentParser(
         prog="jaxcontact",
@@ -47,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--debug", action="store_true",
                         help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in (_demo, _simulate, _fit):
+    for module in (_demo, _simulate, _sweep, _fit):
         module.add_parser(sub, common)
     return parser
 

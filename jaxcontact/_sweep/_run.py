@@ -18,7 +18,9 @@ same arguments (SPMD, as any multi-process JAX program).
 last chunk is padded with copies of a valid point whose results are dropped). By default
 the size follows from a budget per device (`memory_limit`, default: half of the device's
 memory limit where the backend reports one (GPUs), else 512 MiB) divided by an upper
-estimate of the bytes one curve needs (samples x live floats per sample of the model).
+estimate of the bytes one curve needs (samples x live floats per sample of the model), and
+no larger than the points need (rounded up to a power of two per device, so that sweeps of
+similar sizes share one compiled program).
 """
 
 from __future__ import annotations
@@ -60,12 +62,14 @@ def _device_budget(devices) -> int:
 def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_limit=None,
                    devices=None) -> int:
     """Curves per chunk: the memory budget per device over the estimated bytes per curve,
-    a multiple of `n_devices`, no larger than the points need."""
+    a multiple of `n_devices`."""
     per_sample = model.floats_per_curve(arms) + (4 if curves else 0)
     per_curve = int(model.samples) * per_sample * itemsize + 4096
     budget = memory_limit if memory_limit is not None else _device_budget(devices)
     per_device = max(1, min(int(budget) // per_curve, _MAX_CHUNK))
-    need = math.ceil(n_points / n_devices)
+    # no larger than the points need, rounded up to a power of two (sweeps of similar sizes
+    # share one compiled program)
+    need = 1 << max(0, math.ceil(n_points / n_devices) - 1).bit_length()
     return n_devices * max(1, min(per_device, need))
 
 

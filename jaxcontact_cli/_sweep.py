@@ -1,0 +1,347 @@
+"""``jaxcontact sweep``: the forward model over a grid of parameters, written as netCDF.
+
+Every model option of ``simulate`` takes a value or a range: ``LO:HI:N`` (N values, linear)
+or ``LO:HI:N:log`` (logarithmic). Each range is one dimension of the result. The output is
+an ``xarray`` dataset in netCDF-4 (h5netcdf) with a coordinate per parameter and the
+per-point summaries of :func:`jaxcontact.sweep`, and a plot of one summary against one swept
+parameter beside it. Several processes (``--coordinator`` ... or ``--distributed``) share
+the work through ``jax.distributed``; process 0 writes the files.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from ._common import UsageError, check_number, check_output_file, register_cleanup
+from ._simulate import add_material_arguments
+
+__all__ = ["add_parser", "run", "parse_range"]
+
+# command-line option -> (sweep parameter, unit, lower bound allows zero)
+_OPTIONS = {
+    "G0": ("G0", "Pa", False),
+    "G1": ("G1", "Pa", False),
+    "eta1": ("eta1", "Pa s", False),
+    "work_of_adhesion": ("work_of_adhesion", "J/m^2", False),
+    "radius": ("R", "m", False),
+    "depth": ("depth", "m", False),
+    "velocity": ("velocity", "m/s", False),
+    "hold": ("hold", "s", True),
+    "approach_velocity": ("approach_velocity", "m/s", False),
+}
+_SUMMARY_NAMES = (
+    "max_tensile_force_N", "jumpoff_force_N", "jumpoff_displacement_m", "jumpoff_time_s",
+    "jumpoff_contact_radius_m", "separation_work_J", "lift_duration_s",
+)
+
+
+def add_parser(sub, common) -> None:
+    p = sub.add_parser(
+        "sweep", parents=[common],
+        help="sweep the pull-off model over a grid of parameters (netCDF + plot)",
+        description=(
+            "Run the pull-off model of a parabolic indenter on a viscoelastic (standard-model) "
+            "half-space over a grid of parameters. Every model option takes a value or a range "
+            "LO:HI:N (linear) or LO:HI:N:log; each range is one dimension of the result. "
+            "--model relaxed: lift from a fully relaxed contact at --depth; --model history: "
+            "approach, --hold, lift (the full-history model). Each lift lasts --duration-factor "
+            "times a bound of its jump-off time, so every point detaches. Writes a netCDF file "
+            "(per point: max_tensile_force_N, jumpoff_force_N, jumpoff_displacement_m, "
+            "jumpoff_time_s, separation_work_J, status, ...) and a plot beside it."
+        ),
+        epilog=(
+            "example: jaxcontact sweep --G0 1e6 --G1 1e5:1e6:4:log --eta1 1e4 "
+            "--work-of-adhesion 0.05 --radius 1e-2 --depth 1e-4 --velocity 1e-5:1e-1:32:log "
+            "--duration-factor 3 --samples 2000 --out s.nc"
+        ),
+    )
+    add_material_arguments(p)
+    # the same options as `simulate`, read as text: a value or a range (parsed in `run`)
+    for action in p._actions:
+        if action.dest in _OPTIONS:
+            action.type = str
+            action.metavar = "VALUE|LO:HI:N[:log]"
+    p.add_argument("--model", choices=("relaxed", "history"), default="relaxed",
+                   help="relaxed start (default) or the full approach-hold-lift history "
+                        "(needs --hold)")
+    p.add_argument("--samples", type=int, default=2000,
+                   help="samples per curve (default 2000)")
+    p.add_argument("--duration-factor", type=float, default=1.5,
+                   help="each lift lasts this many times the bound of its jump-off time "
+                        "(> 1, default 1.5)")
+    p.add_argument("--cells", type=int, default=64,
+                   help="foundation cells of --model history (default 64)")
+    p.add_argument("--precision", choices=("float32", "float64"), default=None,
+                   help="default: float32 on a GPU, float64 on the CPU")
+    p.add_argument("--curves", action="store_true",
+                   help="also store every curve (time_s, displacement_m, force_N, "
+                        "contact_radius_m)")
+    p.add_argument("--chunk-size", type=int, default=None,
+                   help="curves per compiled call (default: from the memory of a device)")
+    p.add_argument("--out", type=Path, required=True, help="output netCDF file (.nc)")
+    p.add_argument("--plot", type=Path, default=None,
+                   help="plot file (default: --out with .png)")
+    p.add_argument("--no-plot", action="store_true", help="do not write the plot")
+    p.add_argument("--plot-summary", choices=_SUMMARY_NAMES, default="max_tensile_force_N",
+                   help="summary on the plot's y axis (default max_tensile_force_N)")
+    p.add_argument("--plot-x", default=None,
+                   help="swept option on the plot's x axis (default: the one with most values)")
+    p.add_argument("--cpu-devices", type=int, default=None,
+                   help="split the CPU into this many JAX devices (one per core)")
+    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="several processes: the address of process 0 (jax.distributed)")
+    p.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
+    p.add_argument("--process-id", type=int, default=None, help="with --coordinator")
+    p.add_argument("--distributed", action="store_true",
+                   help="several processes, configured from the cluster's environment "
+                        "(SLURM, Open MPI, ...: jax.distributed.initialize())")
+    p.set_defaults(func=run)
+
+
+def parse_range(option: str, text: str, unit: str, *, allow_zero: bool = False):
+    """A value or ``LO:HI:N[:log]`` as a list of floats and whether the spacing is log."""
+    import numpy as np
+
+    form = "a number or LO:HI:N (linear) or LO:HI:N:log"
+    parts = str(text).strip().split(":")
+    try:
+        if len(parts) == 1:
+            values, log = [float(parts[0])], False
+        elif len(parts) in (3, 4):
+            lo, hi = float(parts[0]), float(parts[1])
+            n = int(parts[2])
+            log = len(parts) == 4
+            if log and parts[3] != "log":
+                raise ValueError
+            if n < 1:
+                raise UsageError(f"argument {option}: N in LO:HI:N must be >= 1; got {n}")
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                raise UsageError(f"argument {option}: LO and HI must be finite; got {text!r}")
+            if log:
+                if lo <= 0 or hi <= 0:
+                    raise UsageError(f"argument {option}: a log range needs LO, HI > 0; "
+                                     f"got {text!r}")
+                values = np.geomspace(lo, hi, n).tolist()
+            else:
+                values = np.linspace(lo, hi, n).tolist()
+        else:
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"argument {option}: expected {form}; got {text!r}") from None
+    for v in values:
+        check_number(option, v, unit, low_open=not allow_zero)
+    return values, log
+
+
+def _parameters(args):
+    """The sweep grid of the options (and which are log ranges), checked."""
+    grid, log = {}, {}
+    for dest, (name, unit, allow_zero) in _OPTIONS.items():
+        text = getattr(args, dest)
+        if text is None:
+            continue
+        option = "--" + dest.replace("_", "-")
+        values, is_log = parse_range(option, text, unit, allow_zero=allow_zero)
+        grid[name] = values[0] if len(values) == 1 and ":" not in str(text) else values
+        log[name] = is_log
+    if max(_as_list(grid["depth"])) >= min(_as_list(grid["R"])):
+        raise UsageError(
+            "argument --depth: every depth must be small against every --radius (the parabolic, "
+            "small-strain model needs depth << radius); check the units")
+    if max(_as_list(grid["R"])) > 1.0 or max(_as_list(grid["depth"])) > 1e-2:
+        raise UsageError(
+            "argument --radius/--depth: values above 1 m / 1 cm look like a unit mistake "
+            "(all lengths are in metres, e.g. 5e-6 for 5 µm)")
+    return grid, log
+
+
+def _as_list(x):
+    return x if isinstance(x, list) else [x]
+
+
+def check_args(args):
+    if args.stiffness is not None:
+        raise UsageError("argument --stiffness: not available in sweep (displacement control "
+                         "only); use jaxcontact simulate")
+    if args.model == "history" and args.hold is None:
+        raise UsageError("argument --hold: required with --model history (0 for none)")
+    if args.model == "relaxed":
+        for dest in ("hold", "approach_velocity"):
+            if getattr(args, dest) is not None:
+                raise UsageError(f"argument --{dest.replace('_', '-')}: only with "
+                                 "--model history")
+    if args.samples < (8 if args.model == "history" else 2):
+        low = 8 if args.model == "history" else 2
+        raise UsageError(f"argument --samples: must be an integer >= {low}; got {args.samples}")
+    check_number("--duration-factor", args.duration_factor, "1", low=1.0)
+    if args.cells < 2:
+        raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
+    if args.chunk_size is not None and args.chunk_size < 1:
+        raise UsageError(f"argument --chunk-size: must be an integer >= 1; got {args.chunk_size}")
+    if args.cpu_devices is not None and args.cpu_devices < 1:
+        raise UsageError(f"argument --cpu-devices: must be >= 1; got {args.cpu_devices}")
+    given = [args.num_processes is not None, args.process_id is not None]
+    if args.coordinator is not None:
+        if not all(given):
+            raise UsageError("argument --coordinator: needs --num-processes and --process-id")
+        host, sep, port = args.coordinator.rpartition(":")
+        if not sep or not host or not port.isdigit():
+            raise UsageError(f"argument --coordinator: expected HOST:PORT; got "
+                             f"{args.coordinator!r}")
+        if args.num_processes < 1:
+            raise UsageError(f"argument --num-processes: must be >= 1; got {args.num_processes}")
+        if not 0 <= args.process_id < args.num_processes:
+            raise UsageError(f"argument --process-id: must lie in [0, {args.num_processes - 1}]; "
+                             f"got {args.process_id}")
+        if args.distributed:
+            raise UsageError("argument --distributed: not together with --coordinator")
+    elif any(given):
+        raise UsageError("argument --num-processes/--process-id: need --coordinator")
+    if args.out.suffix != ".nc":
+        raise UsageError(f"argument --out: the file must end in .nc (netCDF); got {args.out}")
+
+
+def _start_jax(args):
+    """Devices and processes: before anything starts a JAX backend."""
+    import jax
+
+    if args.cpu_devices is not None:
+        jax.config.update("jax_num_cpu_devices", int(args.cpu_devices))
+    if args.coordinator is not None:
+        jax.distributed.initialize(coordinator_address=args.coordinator,
+                                   num_processes=args.num_processes,
+                                   process_id=args.process_id)
+    elif args.distributed:
+        jax.distributed.initialize()
+    return jax.process_index()
+
+
+def _temp_beside(path: Path, suffix: str):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; outputs are ordinary files
+    forget = register_cleanup(lambda: os.path.exists(tmp) and os.unlink(tmp))
+    return tmp, forget
+
+
+def _plot(ds, path, summary, x, log):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    swept = [d for d in ds[summary].dims]
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    y = ds[summary]
+    note = []
+    if not swept:
+        ax.plot([0], [float(y)], "o")
+        ax.set_xlabel("(no swept parameter)")
+    else:
+        if x is None:
+            x = max(reversed(swept), key=lambda d: ds.sizes[d])
+        series = [d for d in swept if d != x]
+        line = series[0] if series else None
+        for d in series[1:]:
+            note.append(f"{d} = {float(ds[d][0]):.3g} {ds[d].attrs.get('units', '')}")
+            y = y.isel({d: 0})
+        flip = summary.endswith("_force_N") and bool(np.nanmax(y.values) <= 0)
+        values = -y if flip else y
+        xs = ds[x].values
+        if line is None:
+            ax.plot(xs, values.values, "o-", ms=3)
+        else:
+            for i in range(ds.sizes[line]):
+                v = float(ds[line][i])
+                ax.plot(xs, values.isel({line: i}).values, "o-", ms=3,
+                        label=f"{line} = {v:.3g} {ds[line].attrs.get('units', '')}")
+            ax.legend(fontsize=8)
+        if log.get(x):
+            ax.set_xscale("log")
+        finite = values.values[np.isfinite(values.values)]
+        if finite.size and finite.min() > 0 and finite.max() > 30 * finite.min():
+            ax.set_yscale("log")
+        ax.set_xlabel(f"{x} [{ds[x].attrs.get('units', '')}]")
+        label = summary.replace("_", " ")
+        ax.set_ylabel(("−" if flip else "") + label)
+    ax.set_title(f"jaxcontact sweep ({ds.attrs['model']})" + (": " + ", ".join(note)
+                                                               if note else ""), fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120, format="png")
+    plt.close(fig)
+
+
+def run(args) -> int:
+    check_args(args)
+    grid, log = _parameters(args)
+    out = check_output_file("--out", args.out)
+    plot = None
+    if not args.no_plot:
+        plot = check_output_file("--plot", args.plot if args.plot else out.with_suffix(".png"))
+        if plot.resolve() == out.resolve():
+            raise UsageError("argument --plot: must differ from --out")
+    if args.plot_x is not None:
+        names = {dest.replace("_", "-"): name for dest, (name, _, _) in _OPTIONS.items()}
+        key = args.plot_x.lstrip("-")
+        name = names.get(key, key)
+        if not isinstance(grid.get(name), list):
+            swept = [o for o, n in names.items() if isinstance(grid.get(n), list)]
+            raise UsageError(f"argument --plot-x: must name a swept option "
+                             f"({', '.join(swept) or 'none'}); got {args.plot_x!r}")
+        args.plot_x = name
+
+    rank = _start_jax(args)
+    import numpy as np
+
+    import jaxcontact as jc
+
+    if args.model == "relaxed":
+        model = jc.RelaxedStart(samples=args.samples, duration_factor=args.duration_factor)
+    else:
+        model = jc.ApproachHoldLift(samples=args.samples, duration_factor=args.duration_factor,
+                                    cells=args.cells)
+    size = int(np.prod([len(v) for v in grid.values() if isinstance(v, list)]))
+    if rank == 0:
+        print(f"jaxcontact {jc.__version__}: sweeping {size:,} point(s) x {args.samples} samples "
+              f"({args.model} model) ...", file=sys.stderr, flush=True)
+    ds = jc.sweep(grid, model=model, curves=args.curves, precision=args.precision,
+                  chunk_size=args.chunk_size, progress=True)
+    if rank != 0:
+        return 0
+    ok = {int(jc.RESULTS.detached._value), int(jc.RESULTS.in_contact._value)}
+    status = ds.status.values.ravel()
+    failed = int(np.sum(~np.isin(status, list(ok))))
+    attached = int(np.sum(status == int(jc.RESULTS.in_contact._value)))
+
+    tmp_nc, forget_nc = _temp_beside(out, ".tmp")
+    tmp_png = forget_png = None
+    try:
+        ds.to_netcdf(tmp_nc, engine="h5netcdf")
+        if plot is not None:
+            tmp_png, forget_png = _temp_beside(plot, ".tmp")
+            _plot(ds, tmp_png, args.plot_summary, args.plot_x, log)
+        os.replace(tmp_nc, out)
+        if plot is not None:
+            os.replace(tmp_png, plot)
+    finally:
+        for tmp, forget in ((tmp_nc, forget_nc), (tmp_png, forget_png)):
+            if tmp is not None and os.path.exists(tmp):
+                os.unlink(tmp)
+            if forget is not None:
+                forget()
+    wrote = f"{out}" + (f" and {plot}" if plot is not None else "")
+    print(f"wrote {wrote}: {size:,} point(s), {size - failed - attached:,} detached, "
+          f"{attached:,} still in contact, {failed:,} failed", file=sys.stderr, flush=True)
+    if failed:
+        print(f"jaxcontact sweep: warning: {failed} point(s) failed (their status in the file "
+              "says why; their summaries are NaN)", file=sys.stderr, flush=True)
+    return 1 if failed == size else 0

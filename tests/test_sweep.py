@@ -1,0 +1,318 @@
+"""Tests of `jaxcontact.sweep` against closed forms, `retract`, `simulate`, and itself on 4
+devices and in float32. Compiled sweeps are shared through module fixtures."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import jaxcontact as jc
+from jaxcontact._sweep import SUMMARIES
+
+# the standard-model grid used by several tests (one compiled program)
+STD = dict(G0=1e6, G1=np.array([2e5, 1e6]), eta1=1e4, work_of_adhesion=0.05, R=1e-4,
+           depth=np.array([1e-6, 4e-6]), velocity=np.array([1e-6, 1e-4, 1e-2]))
+RELAXED = jc.RelaxedStart(samples=400, duration_factor=1.5)
+
+
+# 12 points; every standard-model sweep below runs in chunks of 16: one compiled program
+CHUNK = 16
+
+
+@pytest.fixture(scope="module")
+def relaxed():
+    return jc.sweep(STD, model=RELAXED, chunk_size=CHUNK, progress=False)
+
+
+# ---------------------------------------------------------------------------------------
+# separation work and events against the elastic JKR closed form
+# ---------------------------------------------------------------------------------------
+
+
+def jkr_separation_work(G, dgamma, R, d0):
+    r"""$\int \max(-F, 0)\,dd$ from $d_0$ to the jump-off for an elastic half-space (E* = 4G),
+    paraboloid, lifted from the touch radius $a_0 = \sqrt{R d_0}$: a pinned phase
+    $F = 8Ga_0(d - a_0^2/(3R))$ down to $h(a_0)$, then the JKR front
+    $F(a) = 8G(2a^3/(3R) - c a^{3/2})$, $d(a) = a^2/R - c\sqrt a$ down to the fold."""
+    c = np.sqrt(np.pi * dgamma * G / 2) / G
+    a0 = np.sqrt(R * d0)
+    a_fold = (c * R / 4) ** (2 / 3)
+    h0 = a0**2 / R - c * np.sqrt(a0)
+    d_zero = a0**2 / (3 * R)  # the pinned force vanishes here
+    work = 8 * G * a0 * (d_zero - h0) ** 2 / 2 if h0 < d_zero else 0.0
+    a_zero = (1.5 * R * c) ** (2 / 3)  # the front force vanishes here
+
+    def antiderivative(a):  # of 8G (c a^1.5 - 2a^3/(3R)) (2a/R - c/(2 sqrt a))
+        return 8 * G * (2 * c / (3 * R) * a**3.5 - c**2 / 4 * a**2 - 4 / (15 * R**2) * a**5)
+
+    top = min(a0, a_zero)
+    if top > a_fold:
+        work += antiderivative(top) - antiderivative(a_fold)
+    return work
+
+
+def test_elastic_jkr_closed_forms():
+    G, dg, R = 1e5, 0.05, 1e-4
+    depths = np.array([3e-7, 1e-6, 4e-6, 3e-5])  # pinned jump-off ... long receding front
+    ds = jc.sweep({"G_inf": G, "work_of_adhesion": dg, "R": R, "depth": depths,
+                   "velocity": 1e-4}, model=jc.RelaxedStart(samples=2000), progress=False)
+    assert (ds.status == int(jc.RESULTS.detached._value)).all()
+    W = np.array([jkr_separation_work(G, dg, R, d) for d in depths])
+    # trapezoidal rule with an exact square-root last interval: error O(h^1.5), measured
+    # 4e-6 (5e-5 for the deepest, whose tension occupies few samples) at 2000 samples
+    np.testing.assert_allclose(ds.separation_work_J.values, W, rtol=1e-4)
+    # jump-off at the fold of d(a) (JKR, displacement control), or from the pinned state
+    c = np.sqrt(np.pi * dg * G / 2) / G
+    a0, a_fold = np.sqrt(R * depths), (c * R / 4) ** (2 / 3)
+    a_j = np.minimum(a0, a_fold)
+    d_j = a_j**2 / R - c * np.sqrt(a_j)
+    F_j = 8 * G * (a_j * d_j - a_j**3 / (3 * R))
+    np.testing.assert_allclose(ds.jumpoff_displacement_m.values, d_j, rtol=1e-12, atol=1e-20)
+    np.testing.assert_allclose(ds.jumpoff_force_N.values, F_j, rtol=1e-12)
+    np.testing.assert_allclose(ds.jumpoff_force_N.values[a0 > a_fold], -5 / 6 * np.pi * dg * R,
+                               rtol=1e-12)
+    # the largest tensile force: force control's JKR minimum where the front passes it
+    a_fc = (9 * c * R / 4 / 4 * 4 / 3) ** (2 / 3)  # a g' = (3/2) c sqrt(a): a = (3cR/4)^(2/3)
+    assert np.isclose(a_fc, (3 * c * R / 4) ** (2 / 3))
+    passes = a0 > a_fc
+    np.testing.assert_allclose(ds.max_tensile_force_N.values[passes], -1.5 * np.pi * dg * R,
+                               rtol=1e-12)
+    # the lift is a constant-speed lift from the depth: d_j = d0 - v t_j
+    np.testing.assert_allclose(ds.jumpoff_time_s.values, (depths - d_j) / 1e-4, rtol=1e-10)
+
+
+# ---------------------------------------------------------------------------------------
+# labels, the relaxed model against retract, the duration
+# ---------------------------------------------------------------------------------------
+
+
+def test_dataset_labels(relaxed):
+    ds = relaxed
+    assert ds.max_tensile_force_N.dims == ("G1", "depth", "velocity")
+    np.testing.assert_array_equal(ds.velocity.values, STD["velocity"])
+    assert ds.velocity.attrs["units"] == "m/s" and ds.G1.attrs["units"] == "Pa"
+    assert ds.eta1.attrs["units"] == "Pa s" and float(ds.eta1) == 1e4 and ds.eta1.dims == ()
+    units = {"max_tensile_force_N": "N", "jumpoff_time_s": "s", "separation_work_J": "J",
+             "jumpoff_displacement_m": "m"}
+    for name, unit in units.items():
+        assert ds[name].attrs["units"] == unit
+    assert set(SUMMARIES) <= set(ds.data_vars)
+    assert ds.status.dtype == np.int8
+    meanings = ds.status.attrs["flag_meanings"].split()
+    assert meanings[int(ds.status.attrs["flag_values"][0])] == "detached"
+    assert ds.attrs["model"] == "relaxed" and ds.attrs["precision"] == "float64"
+
+
+def test_relaxed_matches_retract_and_lift_reaches_jumpoff(relaxed):
+    ds = relaxed
+    assert (ds.status == int(jc.RESULTS.detached._value)).all()
+    # the bound is exact for the relaxed start: the lift lasts duration_factor x jump-off time
+    np.testing.assert_allclose(ds.jumpoff_time_s * 1.5, ds.lift_duration_s, rtol=1e-10)
+    for i, j, k in [(0, 0, 0), (1, 1, 2), (0, 1, 1)]:
+        p = ds.isel(G1=i, depth=j, velocity=k)
+        ts = np.linspace(0.0, float(p.lift_duration_s), 400)
+        sol = jc.retract(jc.StandardModel(G0=1e6, G1=float(p.G1), eta1=1e4),
+                         jc.Parabola(R=1e-4), work_of_adhesion=0.05, depth=float(p.depth),
+                         velocity=float(p.velocity), ts=ts)
+        for name, ref in [("max_tensile_force_N", sol.max_tensile_force),
+                          ("jumpoff_force_N", sol.jumpoff_force),
+                          ("jumpoff_time_s", sol.jumpoff_time),
+                          ("jumpoff_displacement_m", sol.jumpoff_displacement)]:
+            np.testing.assert_allclose(float(p[name]), float(ref), rtol=1e-9)
+        # separation work against a dense trapezoid of retract's curve to its jump-off
+        dense = jc.retract(jc.StandardModel(G0=1e6, G1=float(p.G1), eta1=1e4),
+                           jc.Parabola(R=1e-4), work_of_adhesion=0.05, depth=float(p.depth),
+                           velocity=float(p.velocity),
+                           ts=np.linspace(0.0, float(sol.jumpoff_time) * (1 - 1e-12), 40001))
+        tension = np.append(np.maximum(-np.asarray(dense.force), 0.0), -float(sol.jumpoff_force))
+        d = np.append(np.asarray(dense.displacement), float(sol.jumpoff_displacement))
+        W = np.sum(0.5 * (tension[:-1] + tension[1:]) * -np.diff(d))
+        np.testing.assert_allclose(float(p.separation_work_J), W, rtol=1e-4)
+
+
+def test_points_and_list_of_sets_match_grid(relaxed):
+    g1, dep, vel = np.meshgrid(STD["G1"], STD["depth"], STD["velocity"], indexing="ij")
+    cols = dict(STD, G1=g1.ravel(), depth=dep.ravel(), velocity=vel.ravel())
+    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False)
+    assert ds.max_tensile_force_N.dims == ("point",) and ds.G1.dims == ("point",)
+    flat = relaxed.stack(point=("G1", "depth", "velocity"))
+    for name in SUMMARIES:
+        np.testing.assert_allclose(ds[name].values, flat[name].values, rtol=1e-12)
+    sets = [dict(G0=1e6, G1=2e5, eta1=1e4, work_of_adhesion=0.05, R=1e-4, depth=1e-6,
+                 velocity=v) for v in (1e-6, 1e-2)]
+    ds2 = jc.sweep(points=sets, model=RELAXED, chunk_size=CHUNK, progress=False)
+    np.testing.assert_allclose(ds2.jumpoff_time_s.values,
+                               relaxed.jumpoff_time_s.isel(G1=0, depth=0).values[[0, 2]],
+                               rtol=1e-12)
+
+
+def test_chunks_give_the_same_result(relaxed):
+    # 40 points in chunks of 16: three chunks, the last one padded
+    flat = relaxed.stack(point=("G1", "depth", "velocity"))
+    reps = np.resize(np.arange(12), 40)
+    cols = dict(STD, G1=flat.G1.values[reps], depth=flat.depth.values[reps],
+                velocity=flat.velocity.values[reps])
+    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False)
+    assert ds.attrs["chunk_size"] == CHUNK
+    for name in SUMMARIES:
+        np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
+
+
+def test_bad_point_is_isolated(relaxed):
+    # eta1 = 1e-320 Pa s underflows to a zero relaxation time in the point's units: that point
+    # is invalid; its neighbours in the same chunk are unaffected
+    ds = jc.sweep(points=dict(STD, G1=2e5, depth=1e-6, velocity=1e-6,
+                              eta1=[1e4, 1e-320, 1e4]),
+                  model=RELAXED, chunk_size=CHUNK, progress=False)
+    assert list(ds.status.values) == [int(jc.RESULTS.detached._value),
+                                      int(jc.RESULTS.invalid_input._value),
+                                      int(jc.RESULTS.detached._value)]
+    for name in SUMMARIES:
+        assert np.isnan(ds[name].values[1])
+        np.testing.assert_allclose(ds[name].values[[0, 2]],
+                                   relaxed[name].isel(G1=0, depth=0, velocity=0).values,
+                                   rtol=1e-12)
+
+
+def test_netcdf_round_trip(relaxed, tmp_path):
+    path = tmp_path / "s.nc"
+    relaxed.to_netcdf(path, engine="h5netcdf")
+    back = xr.load_dataset(path, engine="h5netcdf")
+    xr.testing.assert_identical(back, relaxed)
+
+
+# ---------------------------------------------------------------------------------------
+# the full history
+# ---------------------------------------------------------------------------------------
+
+HISTORY = jc.ApproachHoldLift(samples=480, duration_factor=1.05, cells=64)
+
+
+@pytest.fixture(scope="module")
+def history():
+    grid = dict(STD, depth=4e-6, hold=np.array([0.0, 0.02, 0.5]))
+    return jc.sweep(grid, model=HISTORY, progress=False, curves=True)
+
+
+def test_history_detaches_within_the_bound(history):
+    assert (history.status == int(jc.RESULTS.detached._value)).all()
+    # the bound of the jump-off time is an upper bound: t_j <= T_b = lift / factor
+    assert (history.jumpoff_time_s <= history.lift_duration_s / 1.05 * (1 + 1e-12)).all()
+    assert history.approach_velocity.dims == ("velocity",)
+    # the curves: time 0 is the start of the lift, the indentation is the protocol
+    t, d = history.time_s.isel(G1=0, velocity=1, hold=1), history.displacement_m.isel(
+        G1=0, velocity=1, hold=1)
+    lift = t.values >= 0
+    np.testing.assert_allclose(d.values[lift], 4e-6 - 1e-4 * t.values[lift], rtol=1e-12,
+                               atol=1e-20)
+    np.testing.assert_allclose(d.values[~lift].max(), 4e-6, rtol=1e-12)
+
+
+def test_history_after_long_hold_is_relaxed(history, relaxed):
+    # hold 0.5 s = 60 relaxation times (tau <= 8.3 ms): the relaxed start
+    long = history.isel(hold=2)
+    ref = relaxed.sel(depth=4e-6)
+    for name in ("max_tensile_force_N", "jumpoff_force_N", "jumpoff_time_s",
+                 "jumpoff_displacement_m"):
+        np.testing.assert_allclose(long[name].values, ref[name].values, rtol=1e-9)
+    # the separation work to the quadrature error of each (different samplings)
+    np.testing.assert_allclose(long.separation_work_J.values, ref.separation_work_J.values,
+                               rtol=2e-4)
+    # a short hold leaves the material stiffer: the contact needs a longer lift
+    assert (history.jumpoff_time_s.isel(hold=0) >= long.jumpoff_time_s * (1 - 1e-12)).all()
+
+
+# ---------------------------------------------------------------------------------------
+# float32 and devices
+# ---------------------------------------------------------------------------------------
+
+
+def test_float32_against_float64():
+    # physical scales from an AFM cell measurement (nN, 100 nm) to a mm gel contact
+    grid = dict(G0=np.array([1e3, 1e9]), G1=1e5, eta1=1e4, work_of_adhesion=np.array([1e-4, 0.1]),
+                R=np.array([1e-6, 1e-2]), depth=1e-7, velocity=np.array([1e-7, 1e-3]))
+    d64 = jc.sweep(grid, model=RELAXED, precision="float64", chunk_size=CHUNK, progress=False)
+    d32 = jc.sweep(grid, model=RELAXED, precision="float32", chunk_size=CHUNK, progress=False)
+    assert (d32.status == d64.status).all() and (d64.status == 0).all()
+    for name in ("max_tensile_force_N", "jumpoff_force_N", "jumpoff_time_s",
+                 "separation_work_J", "jumpoff_contact_radius_m", "lift_duration_s"):
+        rel = np.abs(d32[name].values / d64[name].values - 1)
+        assert rel.max() < (2e-5 if name == "separation_work_J" else 5e-6), (name, rel.max())
+    # the jump-off indentation may cross 0: relative to the depth
+    err = np.abs(d32.jumpoff_displacement_m - d64.jumpoff_displacement_m) / 1e-7
+    assert float(err.max()) < 1e-5
+
+
+FOUR_DEVICES = textwrap.dedent(
+    """
+    import json, numpy as np, jax
+    import jaxcontact as jc
+    from tests.test_sweep import STD, RELAXED
+    ds = jc.sweep(STD, model=RELAXED, chunk_size=16, progress=False)
+    print(json.dumps(dict(devices=ds.attrs["devices"], chunk=ds.attrs["chunk_size"],
+        n=len(jax.devices()),
+        values={k: ds[k].values.ravel().tolist() for k in ds.data_vars})))
+    """
+)
+
+
+def test_four_devices_match_one(relaxed):
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4",
+               JAX_PLATFORMS="cpu", PYTHONPATH=os.getcwd())
+    out = subprocess.run([sys.executable, "-c", FOUR_DEVICES], env=env, capture_output=True,
+                         text=True, timeout=300, cwd=os.path.dirname(os.path.dirname(__file__)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["n"] == 4 and got["devices"] == 4 and got["chunk"] % 4 == 0
+    assert relaxed.attrs["devices"] == 1
+    for name, values in got["values"].items():
+        np.testing.assert_allclose(values, relaxed[name].values.ravel(), rtol=1e-13)
+
+
+# ---------------------------------------------------------------------------------------
+# errors
+# ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(G0=-1.0), "`G0` must lie in"),
+        (dict(velocity=[1e-3, np.nan]), r"`velocity` .*entry 1"),
+        (dict(hold=1.0), "not used by this model"),
+        (dict(tau_1=1.0), "mix two material families"),
+        (dict(half_angle=1.0), "exactly one indenter"),
+        (dict(speed=1.0), "unknown sweep parameter 'speed'"),
+        (dict(depth=np.ones((2, 2))), "scalar or a 1-D array"),
+        (dict(depth=[]), "empty"),
+    ],
+)
+def test_bad_parameters_name_the_parameter(change, match):
+    with pytest.raises(ValueError, match=match):
+        jc.sweep(dict(STD, **change), model=RELAXED, progress=False)
+
+
+def test_bad_options():
+    with pytest.raises(ValueError, match="missing sweep parameter"):
+        jc.sweep({k: v for k, v in STD.items() if k != "velocity"}, progress=False)
+    with pytest.raises(ValueError, match="standard model needs"):
+        jc.sweep({k: v for k, v in STD.items() if k != "eta1"}, progress=False)
+    with pytest.raises(ValueError, match="hold"):
+        jc.sweep(STD, model=HISTORY, progress=False)
+    with pytest.raises(ValueError, match="exactly one of"):
+        jc.sweep(STD, points=STD, progress=False)
+    with pytest.raises(ValueError, match="equal lengths"):
+        jc.sweep(points=dict(STD, G1=[1e5, 2e5, 3e5]), progress=False)
+    with pytest.raises(ValueError, match="duration_factor"):
+        jc.RelaxedStart(duration_factor=1.0)
+    with pytest.raises(ValueError, match="samples"):
+        jc.ApproachHoldLift(samples=4)
+    with pytest.raises(ValueError, match="precision"):
+        jc.sweep(STD, precision="float16", progress=False)
+    with pytest.raises(TypeError, match="model"):
+        jc.sweep(STD, model="relaxed", progress=False)

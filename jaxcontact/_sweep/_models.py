@@ -179,7 +179,8 @@ class AbstractSweepModel(eqx.Module):
         raise NotImplementedError
 
     def floats_per_curve(self, arms: int) -> int:
-        """Live floats per sample of one curve, an upper estimate for sizing chunks."""
+        """Live floats per sample of one curve (without the curves' outputs), an upper
+        estimate for sizing chunks."""
         raise NotImplementedError
 
 
@@ -242,7 +243,9 @@ class RelaxedStart(AbstractSweepModel):
         return _result(sol, sol.displacement, lift, 0.0, duration, ts, curves, valid)
 
     def floats_per_curve(self, arms: int) -> int:
-        return 24 + 4 * arms
+        # XLA's compiled memory measures 6.3 floats per sample with one arm
+        # (benchmarks/bench_sweep.py); with a margin
+        return 8 + 2 * arms
 
 
 class ApproachHoldLift(AbstractSweepModel):
@@ -295,5 +298,6 @@ class ApproachHoldLift(AbstractSweepModel):
         return _result(sol, sol.displacement, lift, t_h, duration, ts - t_h, curves, valid)
 
     def floats_per_curve(self, arms: int) -> int:
-        n = max(arms, 1)
-        return 64 + 8 * n * n + 4 * n
+        # XLA's compiled memory measures 9.7 (2000 samples) to 11.7 (500) floats per sample
+        # with one arm: per-sample outputs and the free propagators (N x N per sample)
+        return 8 + 4 * arms * arms + 4 * arms

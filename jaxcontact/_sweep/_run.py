@@ -19,7 +19,7 @@ last chunk is padded with copies of a valid point whose results are dropped). By
 the size follows from a budget per device (`memory_limit`, default: half of the device's
 memory limit where the backend reports one (GPUs), else 512 MiB) divided by an upper
 estimate of the bytes one curve needs (samples x live floats per sample of the model), and
-no larger than the points need (rounded up to a power of two per device, so that sweeps of
+no larger than the points need (rounded up to 1/8 of an octave per device, so that sweeps of
 similar sizes share one compiled program).
 """
 
@@ -67,9 +67,11 @@ def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_li
     per_curve = int(model.samples) * per_sample * itemsize + 4096
     budget = memory_limit if memory_limit is not None else _device_budget(devices)
     per_device = max(1, min(int(budget) // per_curve, _MAX_CHUNK))
-    # no larger than the points need, rounded up to a power of two (sweeps of similar sizes
-    # share one compiled program)
-    need = 1 << max(0, math.ceil(n_points / n_devices) - 1).bit_length()
+    # no larger than the points need, rounded up to 1/8 of an octave (at most 12.5 % padding;
+    # sweeps of similar sizes share one compiled program)
+    need = math.ceil(n_points / n_devices)
+    step = 1 << max(0, (need - 1).bit_length() - 3)
+    need = step * math.ceil(need / step)
     return n_devices * max(1, min(per_device, need))
 
 

@@ -1,0 +1,214 @@
+"""Throughput, memory and float32 accuracy of `jaxcontact.sweep` (issue 13).
+
+1. Forward samples/s of `jc.sweep` (relaxed start, the CPU default float64) against the
+   batch size, from 1 to 10^6 curves, and of the vectorised-numpy implementation of the same
+   closed form (`bench_retract.numpy_model`, which computes the forces only: no events, no
+   separation work, no per-curve duration), run in chunks of 8,192 curves, measured in the
+   same run (interleaved medians). The sweep's time is the whole call: scaling, chunks,
+   device transfers and the labelled dataset.
+2. Memory per curve: XLA's compiled memory (arguments + outputs + temporaries of one chunk)
+   and the growth of the peak resident memory of the process over the largest batch.
+3. One vs four virtual CPU devices (`--xla_force_host_platform_device_count`): the overhead of
+   sharding on one machine (this CPU has 2 cores; four devices cannot be faster).
+4. float32 against float64 over a sweep of random parameter sets (relaxed start and the full
+   history), and the speed of float32 on the CPU; full-history curves per second.
+
+    nice -n 10 python benchmarks/bench_sweep.py [--samples 256] [--max-batch 1000000]
+
+Prints markdown rows for `benchmarks/results/sweep.md`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+from bench_retract import D0, R, numpy_model, params  # the baseline, reused
+
+import jaxcontact as jc
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def points(n, seed=0):
+    G0, G1, eta1, dg, v = params(n, seed)
+    return dict(G0=G0, G1=G1, eta1=eta1, work_of_adhesion=dg, velocity=v, R=R, depth=D0)
+
+
+def run_sweep(pts, model, **kw):
+    return jc.sweep(points=pts, model=model, progress=False, **kw)
+
+
+def numpy_chunked(pts, samples, chunk=8192):
+    ts = np.linspace(0.0, 0.2, samples)
+    n = pts["G0"].shape[0]
+    total = 0.0
+    for lo in range(0, n, chunk):
+        sl = slice(lo, lo + chunk)
+        F = numpy_model(pts["G0"][sl], pts["G1"][sl], pts["eta1"][sl],
+                        pts["work_of_adhesion"][sl], pts["velocity"][sl], ts)
+        total += float(F[:, -1].sum())
+    return total
+
+
+def timed(fn):
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def batch_table(samples, max_batch):
+    model = jc.RelaxedStart(samples=samples)
+    rows = []
+    batches = [b for b in (1, 10, 100, 1_000, 10_000, 100_000, 1_000_000) if b <= max_batch]
+    for b in batches:
+        pts = points(b)
+        first = timed(lambda p=pts: run_sweep(p, model))  # compile (one per chunk size)
+        repeats = 5 if b <= 10_000 else (3 if b <= 100_000 else 1)
+        tj, tn = [], []
+        rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        for _ in range(repeats):
+            tj.append(timed(lambda p=pts: run_sweep(p, model)))
+            tn.append(timed(lambda p=pts: numpy_chunked(p, samples)))
+        rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        ratios = [n / j for j, n in zip(tj, tn, strict=True)]
+        mj, mn = statistics.median(tj), statistics.median(tn)
+        row = dict(batch=b, first_s=first, sweep_s=mj, numpy_s=mn,
+                   sweep_sps=b * samples / mj, numpy_sps=b * samples / mn,
+                   ratio=statistics.median(ratios), rss_growth_MiB=(rss1 - rss0) / 1024)
+        rows.append(row)
+        print(f"| {b:,} | {mj:.4g} | {b * samples / mj:.3g} | {mn:.4g} | {b * samples / mn:.3g} "
+              f"| {row['ratio']:.1f}x | {first:.2f} |", flush=True)
+    return rows
+
+
+def memory_per_curve(samples, chunks=(256, 4096)):
+    """XLA's compiled memory of one chunk, per curve."""
+    import jax
+
+    from jaxcontact._sweep._parameters import _ProfileFamily, _StandardFamily
+    from jaxcontact._sweep._run import _compiled
+
+    model = jc.RelaxedStart(samples=samples)
+    out = {}
+    names = tuple(sorted(["G0", "G1", "eta1", "work_of_adhesion", "velocity", "R", "depth"]))
+    for c in chunks:
+        with jax.enable_x64(True):
+            fn, sharding = _compiled(model, _StandardFamily(), _ProfileFamily("R"), names, False,
+                                     tuple(jax.devices()), "float64")
+            cols = {n: jax.ShapeDtypeStruct((c,), np.float64, sharding=sharding) for n in names}
+            mem = fn.lower(cols).compile().memory_analysis()
+        total = (mem.argument_size_in_bytes + mem.output_size_in_bytes
+                 + mem.temp_size_in_bytes)
+        out[c] = total / c
+        print(f"compiled memory, chunk {c}: {total / 2**20:.1f} MiB = {total / c / 1024:.1f} KiB "
+              f"per curve ({samples} samples: {total / c / samples:.0f} B per sample)", flush=True)
+    return out
+
+
+DEVICES_CHILD = """
+import json, statistics, time, sys
+sys.path.insert(0, {here!r})
+import jax, jaxcontact as jc
+from bench_sweep import points, run_sweep
+pts = points({n})
+m = jc.RelaxedStart(samples={samples})
+run_sweep(pts, m)
+t = []
+for _ in range(5):
+    t0 = time.perf_counter(); run_sweep(pts, m); t.append(time.perf_counter() - t0)
+print(json.dumps(dict(devices=len(jax.devices()), t=statistics.median(t))))
+"""
+
+
+def devices_overhead(samples, n=10_000):
+    res = {}
+    for count in (1, 4):
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={count}")
+        code = DEVICES_CHILD.format(here=HERE, n=n, samples=samples)
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, check=True)
+        res[count] = json.loads(out.stdout.strip().splitlines()[-1])
+    ratio = res[4]["t"] / res[1]["t"]
+    print(f"| {n:,} curves x {samples} samples | {res[1]['t']:.3f} s | {res[4]['t']:.3f} s | "
+          f"{ratio:.2f} |", flush=True)
+    return res
+
+
+def relative(a, b):
+    ok = np.isfinite(a) & np.isfinite(b) & (b != 0)
+    return np.abs(a[ok] / b[ok] - 1)
+
+
+def float32_table(n_relaxed=10_000, n_history=256, samples=2000):
+    rows = []
+    cases = [("relaxed", jc.RelaxedStart(samples=samples), points(n_relaxed, seed=1))]
+    rng = np.random.default_rng(2)
+    hist = points(n_history, seed=3)
+    hist["hold"] = 10 ** rng.uniform(-3, 0, n_history)
+    cases.append(("history", jc.ApproachHoldLift(samples=samples), hist))
+    for label, model, pts in cases:
+        d64 = run_sweep(pts, model, precision="float64")
+        t64 = timed(lambda p=pts, m=model: run_sweep(p, m, precision="float64"))
+        d32 = run_sweep(pts, model, precision="float32")
+        t32 = timed(lambda p=pts, m=model: run_sweep(p, m, precision="float32"))
+        n = pts["G0"].shape[0]
+        same = float(np.mean(d32.status.values == d64.status.values))
+        print(f"{label}: {n} curves x {samples} samples: float64 {t64:.2f} s "
+              f"({n / t64:.3g} curves/s, {n * samples / t64:.3g} samples/s), float32 {t32:.2f} s "
+              f"({n * samples / t32:.3g} samples/s); same status {100 * same:.2f} %", flush=True)
+        for name in ("max_tensile_force_N", "jumpoff_force_N", "jumpoff_time_s",
+                     "separation_work_J"):
+            r = relative(d32[name].values, d64[name].values)
+            rows.append((label, name, np.median(r), np.percentile(r, 99), r.max()))
+        dd = np.abs(d32.jumpoff_displacement_m.values - d64.jumpoff_displacement_m.values) / D0
+        dd = dd[np.isfinite(dd)]
+        rows.append((label, "jumpoff_displacement_m (/ depth)", np.median(dd),
+                     np.percentile(dd, 99), dd.max()))
+        rows.append((label, "speed", n * samples / t64, n * samples / t32, n / t64))
+    for label, name, a, b, c in rows:
+        if name == "speed":
+            print(f"| {label} | samples/s float64 {a:.3g}, float32 {b:.3g}; curves/s float64 "
+                  f"{c:.3g} |", flush=True)
+        else:
+            print(f"| {label} | {name} | {a:.1e} | {b:.1e} | {c:.1e} |", flush=True)
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--samples", type=int, default=256)
+    ap.add_argument("--max-batch", type=int, default=1_000_000)
+    ap.add_argument("--skip", default="", help="comma list of: batch,memory,devices,float32")
+    args = ap.parse_args()
+    skip = set(args.skip.split(","))
+    import jax
+
+    print(f"devices: {jax.devices()}; jaxcontact {jc.__version__}; jax {jax.__version__}")
+    if "batch" not in skip:
+        print("\n| curves | sweep [s] | sweep samples/s | numpy [s] | numpy samples/s | ratio | "
+              "first call [s] |\n| --- | --- | --- | --- | --- | --- | --- |")
+        rows = batch_table(args.samples, args.max_batch)
+        big = rows[-1]
+        print(f"peak resident memory growth over the {big['batch']:,}-curve runs: "
+              f"{big['rss_growth_MiB']:.0f} MiB")
+    if "memory" not in skip:
+        memory_per_curve(args.samples)
+        memory_per_curve(2000, chunks=(4096,))
+    if "devices" not in skip:
+        print("\n| batch | 1 device | 4 devices | ratio |\n| --- | --- | --- | --- |")
+        devices_overhead(args.samples)
+    if "float32" not in skip:
+        print("\n| model | summary | median | 99th pct | max |\n| --- | --- | --- | --- | --- |")
+        float32_table()
+
+
+if __name__ == "__main__":
+    main()

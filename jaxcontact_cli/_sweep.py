@@ -91,7 +91,7 @@ def add_parser(sub, common) -> None:
     p.add_argument("--plot-x", default=None,
                    help="swept option on the plot's x axis (default: the one with most values)")
     p.add_argument("--cpu-devices", type=int, default=None,
-                   help="split the CPU into this many JAX devices (one per core)")
+                   help="JAX devices on the CPU (default: one per usable core)")
     p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
                    help="several processes: the address of process 0 (jax.distributed)")
     p.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
@@ -209,8 +209,18 @@ def _start_jax(args):
     """Devices and processes: before anything starts a JAX backend."""
     import jax
 
-    if args.cpu_devices is not None:
-        jax.config.update("jax_num_cpu_devices", int(args.cpu_devices))
+    # one JAX CPU device per usable core (the sweep shards its chunks over them; on a GPU
+    # machine this only splits the CPU backend, which the sweep does not use)
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - platforms without affinity
+        usable = os.cpu_count() or 1
+    try:
+        jax.config.update("jax_num_cpu_devices", int(args.cpu_devices or usable))
+    except RuntimeError:  # JAX already started (the command called from Python)
+        if args.cpu_devices is not None:
+            raise UsageError("argument --cpu-devices: JAX has already started in this "
+                             "process; it only applies to a fresh process") from None
     if args.coordinator is not None:
         jax.distributed.initialize(coordinator_address=args.coordinator,
                                    num_processes=args.num_processes,

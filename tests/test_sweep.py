@@ -196,7 +196,7 @@ HISTORY = jc.ApproachHoldLift(samples=480, duration_factor=1.05, cells=64)
 @pytest.fixture(scope="module")
 def history():
     grid = dict(STD, depth=4e-6, hold=np.array([0.0, 0.02, 0.5]))
-    return jc.sweep(grid, model=HISTORY, progress=False, curves=True)
+    return jc.sweep(grid, model=HISTORY, chunk_size=CHUNK, progress=False, curves=True)
 
 
 def test_history_detaches_within_the_bound(history):

@@ -15,10 +15,12 @@ from jaxcontact_cli import main
 from jaxcontact_cli._sweep import parse_range
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-# the example of issue 13, with fewer points and samples
+# the example of issue 13, with fewer points and samples (and the model and chunks of
+# tests/test_sweep.py, whose compiled program it shares when both run in one process)
 ARGS = ["sweep", "--G0", "1e6", "--G1", "1e5:1e6:2:log", "--eta1", "1e4",
         "--work-of-adhesion", "0.05", "--radius", "1e-2", "--depth", "1e-4",
-        "--velocity", "1e-5:1e-1:3:log", "--duration-factor", "3", "--samples", "400"]
+        "--velocity", "1e-5:1e-1:3:log", "--duration-factor", "1.5", "--samples", "400",
+        "--chunk-size", "16"]
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +42,8 @@ def test_example_writes_netcdf_and_plot_matching_the_library(example, capsys):
     assert ds.velocity.attrs["units"] == "m/s" and float(ds.R) == 1e-2
     ref = jc.sweep(dict(G0=1e6, G1=[1e5, 1e6], eta1=1e4, work_of_adhesion=0.05, R=1e-2,
                         depth=1e-4, velocity=[1e-5, 1e-3, 1e-1]),
-                   model=jc.RelaxedStart(samples=400, duration_factor=3.0), progress=False)
+                   model=jc.RelaxedStart(samples=400, duration_factor=1.5), chunk_size=16,
+                   progress=False)
     for name in jc._sweep.SUMMARIES:
         np.testing.assert_allclose(ds[name].values, ref[name].values, rtol=1e-13)
     assert (ds.status == int(jc.RESULTS.detached._value)).all()

@@ -115,22 +115,22 @@ def test_relaxed_matches_retract_and_lift_reaches_jumpoff(relaxed):
     np.testing.assert_allclose(ds.jumpoff_time_s * 1.5, ds.lift_duration_s, rtol=1e-10)
     for i, j, k in [(0, 0, 0), (1, 1, 2), (0, 1, 1)]:
         p = ds.isel(G1=i, depth=j, velocity=k)
-        ts = np.linspace(0.0, float(p.lift_duration_s), 400)
+        # retract on 40,001 samples up to just before the jump-off (the events are refined
+        # between samples, so they do not depend on the sampling)
         sol = jc.retract(jc.StandardModel(G0=1e6, G1=float(p.G1), eta1=1e4),
                          jc.Parabola(R=1e-4), work_of_adhesion=0.05, depth=float(p.depth),
-                         velocity=float(p.velocity), ts=ts)
+                         velocity=float(p.velocity),
+                         ts=np.linspace(0.0, float(p.lift_duration_s), 40001))
         for name, ref in [("max_tensile_force_N", sol.max_tensile_force),
                           ("jumpoff_force_N", sol.jumpoff_force),
                           ("jumpoff_time_s", sol.jumpoff_time),
                           ("jumpoff_displacement_m", sol.jumpoff_displacement)]:
             np.testing.assert_allclose(float(p[name]), float(ref), rtol=1e-9)
-        # separation work against a dense trapezoid of retract's curve to its jump-off
-        dense = jc.retract(jc.StandardModel(G0=1e6, G1=float(p.G1), eta1=1e4),
-                           jc.Parabola(R=1e-4), work_of_adhesion=0.05, depth=float(p.depth),
-                           velocity=float(p.velocity),
-                           ts=np.linspace(0.0, float(sol.jumpoff_time) * (1 - 1e-12), 40001))
-        tension = np.append(np.maximum(-np.asarray(dense.force), 0.0), -float(sol.jumpoff_force))
-        d = np.append(np.asarray(dense.displacement), float(sol.jumpoff_displacement))
+        # separation work against the dense trapezoid of retract's curve to its jump-off
+        F, d = np.asarray(sol.force), np.asarray(sol.displacement)
+        inside = F != 0
+        tension = np.append(np.maximum(-F[inside], 0.0), -float(sol.jumpoff_force))
+        d = np.append(d[inside], float(sol.jumpoff_displacement))
         W = np.sum(0.5 * (tension[:-1] + tension[1:]) * -np.diff(d))
         np.testing.assert_allclose(float(p.separation_work_J), W, rtol=1e-4)
 
@@ -243,9 +243,10 @@ def test_float32_against_float64():
                  "separation_work_J", "jumpoff_contact_radius_m", "lift_duration_s"):
         rel = np.abs(d32[name].values / d64[name].values - 1)
         assert rel.max() < (2e-5 if name == "separation_work_J" else 5e-6), (name, rel.max())
-    # the jump-off indentation may cross 0: relative to the depth
-    err = np.abs(d32.jumpoff_displacement_m - d64.jumpoff_displacement_m) / 1e-7
-    assert float(err.max()) < 1e-5
+    # the jump-off indentation may cross 0: relative to max(|d_j|, depth)
+    d_j = d64.jumpoff_displacement_m
+    err = np.abs(d32.jumpoff_displacement_m - d_j) / np.maximum(np.abs(d_j), 1e-7)
+    assert float(err.max()) < 5e-6
 
 
 FOUR_DEVICES = textwrap.dedent(

@@ -141,7 +141,7 @@ def run_points(model, material, profile, scaled, *, dtype, curves, chunk_size=No
     itemsize = np.dtype(dtype).itemsize
     if chunk_size is None:
         chunk = chunk_size_for(model, arms, itemsize, curves, n_points, n_dev, memory_limit,
-                               devices)
+                               jax.local_devices())
     else:
         chunk = n_dev * max(1, math.ceil(int(chunk_size) / n_dev))
     n_chunks = math.ceil(n_points / chunk)

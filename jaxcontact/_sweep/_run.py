@@ -31,13 +31,12 @@ import time
 from functools import lru_cache
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._models import PointResult
 
-__all__ = ["run_points", "default_precision"]
+__all__ = ["run_points", "default_precision", "chunk_size_for"]
 
 _CPU_BUDGET = 512 * 2**20
 _MAX_CHUNK = 2**17
@@ -190,7 +189,3 @@ def _fields(result: PointResult):
         value = getattr(result, name)
         if value is not None:
             yield name, value
-
-
-def as_jnp_dtype(precision):
-    return {"float32": jnp.float32, "float64": jnp.float64}[precision]

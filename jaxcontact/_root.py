@@ -34,8 +34,7 @@ from jax import lax
 __all__ = ["bracketed_root", "concave_root", "newton_root"]
 
 
-def _solve(fn, lo, hi, steps):
-    dtype = jnp.result_type(lo, hi)
+def _solve(fn, lo, hi, steps, dtype):
     lo = lax.stop_gradient(jnp.asarray(lo, dtype))
     hi = lax.stop_gradient(jnp.asarray(hi, dtype))
     eps4 = 4.0 * jnp.finfo(jnp.result_type(lo, hi)).eps
@@ -116,14 +115,18 @@ def bracketed_root(
     """
     lo = jnp.asarray(lo)
     hi = jnp.asarray(hi)
+    # the precision of the bracket and of the function: a Python-float bracket (weakly
+    # typed) takes that of the function's values
+    dtype = jnp.result_type(lo, hi, jax.eval_shape(fn, lo).dtype)
 
     def solve(f, _guess):
-        return _solve(f, lo, hi, steps)
+        return _solve(f, lo, hi, steps, dtype)
 
     def tangent_solve(g, y):
         return y / g(jnp.ones_like(y))
 
-    return lax.custom_root(fn, 0.5 * (lo + hi), solve, tangent_solve)
+    guess = jnp.asarray(0.5 * (lo + hi), dtype)
+    return lax.custom_root(fn, guess, solve, tangent_solve)
 
 
 def concave_root(

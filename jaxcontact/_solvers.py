@@ -41,7 +41,7 @@ __all__ = [
     "smallest",
 ]
 
-_GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
+_GOLDEN = float(0.5 * (np.sqrt(5.0) - 1.0))  # a Python float: weakly typed
 
 
 def as_float(x) -> Array:

@@ -148,11 +148,12 @@ def bench_error(n_samples: int, cells_list, ref_cells: int):
               f"{e_fj:10.2e} {e_ft:10.2e}")
     default = jc.FoundationGrid().cells
     est = jax.jit(
-        lambda dd: jc.simulate(rheo, PROFILE, DGAMMA, ts, dd, estimate_error=True).stats
+        lambda dd: jc.simulate(rheo, PROFILE, DGAMMA, ts, dd,
+                               estimate_error=True).details.error_estimate
     )(d)
     print(f"  default grid ({default} cells): Richardson estimate from simulate(..., "
-          f"estimate_error=True): {float(est['relative_discretisation_error']):.2e} "
-          f"(force), {float(est['jumpoff_time_error']) / TAU:.2e} tau (jump-off time)")
+          f"estimate_error=True): {float(est.relative_force):.2e} "
+          f"(force), {float(est.jumpoff_time) / TAU:.2e} tau (jump-off time)")
     return rows
 
 
@@ -194,7 +195,7 @@ def check_gradients():
 
 def check_profiles_and_limits():
     """Long hold then lift against `retract` for other profiles; soft compliant spring."""
-    from jaxcontact._pulloff import retract
+    retract = jc.retract
 
     print("\n== long hold (60 tau) then lift at d0/tau, default grid, against retract")
     rheo = jc.StandardModel(G0, G1, ETA1)

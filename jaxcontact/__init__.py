@@ -10,8 +10,10 @@ separation per unit area Δγ [J/m²]. Moduli are shear moduli G [Pa] of an inco
 half-space, so the MDR foundation stiffness is 4G per unit length (E* = 4G).
 
 float64 is switched on at import (``jax_enable_x64``): results are float64 unless every
-input is float32, in which case the computation runs in float32 (see the README for the
-measured float32 error).
+floating input is float32, in which case the computation runs in float32 (Python floats
+take the precision of the arrays they meet; see the README for the measured float32
+error). Inputs are checked eagerly (`ValueError`) and under `jit`/`vmap` (`.result` per
+lane, `throw=`), including the plausibility of their units (`plausibility_checks`).
 """
 
 # ruff: noqa: I001
@@ -23,6 +25,8 @@ from ._version import __version__ as __version__  # noqa: E402
 
 # --- profiles --------------------------------------------------------------------------
 from ._profiles import AbstractProfile as AbstractProfile  # noqa: E402
+from ._profiles import AbstractCurvedProfile as AbstractCurvedProfile  # noqa: E402
+from ._profiles import AbstractPowerLawProfile as AbstractPowerLawProfile  # noqa: E402
 from ._profiles import Cone as Cone  # noqa: E402
 from ._profiles import FlatPunch as FlatPunch  # noqa: E402
 from ._profiles import Parabola as Parabola  # noqa: E402
@@ -54,12 +58,18 @@ from ._elastic import jkr_displacement as jkr_displacement  # noqa: E402
 from ._elastic import jkr_force as jkr_force  # noqa: E402
 from ._elastic import profile_radius as profile_radius  # noqa: E402
 from ._elastic import pull_off as pull_off  # noqa: E402
-from ._pulloff import AbstractMethod as AbstractMethod  # noqa: E402
-from ._pulloff import DiffraxODE as DiffraxODE  # noqa: E402
-from ._pulloff import ExactUpdate as ExactUpdate  # noqa: E402
+from ._method import AbstractMethod as AbstractMethod  # noqa: E402
+from ._method import DiffraxODE as DiffraxODE  # noqa: E402
+from ._method import ExactUpdate as ExactUpdate  # noqa: E402
 from ._pulloff import retract as retract  # noqa: E402
 from ._solution import RESULTS as RESULTS  # noqa: E402
 from ._solution import ContactSolution as ContactSolution  # noqa: E402
+from ._solution import ErrorEstimate as ErrorEstimate  # noqa: E402
+from ._solution import FoundationDetails as FoundationDetails  # noqa: E402
+from ._solution import RetractDetails as RetractDetails  # noqa: E402
+from ._foundation import FoundationState as FoundationState  # noqa: E402
+from ._validate import PLAUSIBLE as PLAUSIBLE  # noqa: E402
+from ._validate import plausibility_checks as plausibility_checks  # noqa: E402
 from ._bem import BEMGrid as BEMGrid  # noqa: E402
 from ._bem import BEMSolution as BEMSolution  # noqa: E402
 from ._bem import bem_contact as bem_contact  # noqa: E402

@@ -37,6 +37,10 @@ exactly zero.
 
 **Force.** $F = 2\int_0^a q\,\mathrm{d}x = 8G_\infty\big(a\,d_\mathrm{eff} - \int_0^a g\big)$.
 
+Everything is one compiled program per configuration (types, shapes, method); inputs are
+checked eagerly (`ValueError`) and, under `jit`/`vmap`, per lane in `.result`
+(`docs/physics.md` §4; the reliability checks in `docs/reliability-forward.md`).
+
 Note: this model gives $\Delta\gamma_\mathrm{eff} = \Delta\gamma G_g/G_\infty$ already at slow
 pulling, unlike classical viscoelastic crack theories (Schapery, Greenwood–Johnson,
 Persson–Brener); do not validate it against those.
@@ -44,230 +48,74 @@ Persson–Brener); do not validate it against those.
 
 from __future__ import annotations
 
-import diffrax
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jax import lax
-from jax.custom_derivatives import SymbolicZero
 from jaxtyping import ArrayLike, Float
 
-from ._elastic import (
-    _critical_radius,
-    _front_displacement,
-    _stable_radius,
-    profile_radius,
-)
-from ._profiles import AbstractProfile, Cone, FlatPunch, Parabola
+from ._arms import phi
+from ._method import AbstractMethod, DiffraxODE, ExactUpdate
+from ._profiles import AbstractProfile, front_displacement
+from ._rheology import AbstractRheology
 from ._root import bracketed_root
-from ._solution import RESULTS, ContactSolution, is_error
-from ._solvers import as_float
-from ._validate import check_finite, check_positive, check_times, is_concrete
+from ._solution import (
+    RESULTS,
+    ContactSolution,
+    RetractDetails,
+    fold_results,
+    is_error,
+    nan_where,
+)
+from ._solvers import as_float, cast_floats, float_dtype, smallest
+from ._validate import (
+    Constraint,
+    check_domain_plausible,
+    check_finite,
+    check_plausible,
+    check_times,
+    domain_ok,
+    domain_plausible,
+    is_concrete,
+    plausibility_enabled,
+    plausible,
+    times_ok,
+    unchecked,
+)
 
 __all__ = ["retract", "ExactUpdate", "DiffraxODE", "AbstractMethod"]
 
 
-class AbstractMethod(eqx.Module):
-    """How the internal viscoelastic variables are integrated in time."""
-
-
-class ExactUpdate(AbstractMethod):
-    r"""Exact solution for piecewise-linear displacement histories (default, fastest).
-
-    For a constant-speed lift the closed form $w_k = -(G_k/G_g)\tau_k v(1 - e^{-t/\tau_k})$ is
-    used; for sampled histories the exact exponential update
-    $w_k \leftarrow w_k e^{-\Delta/\tau_k} + (G_k/G_g)\,\Delta\delta\,
-    (1 - e^{-\Delta/\tau_k})\tau_k/\Delta$ over each interval, combined by a parallel
-    associative scan.
-    """
-
-
-class DiffraxODE(AbstractMethod):
-    r"""Integrate $\dot w_k = (G_k/G_g)\dot\delta - w_k/\tau_k$ with diffrax.
-
-    **Arguments:**
-
-    - `solver`: a diffrax solver (default `diffrax.Tsit5()`, whose dense output keeps the
-      saved values at the step accuracy; for relaxation times far shorter than the sampling
-      interval choose an L-stable one such as `diffrax.Kvaerno5()`).
-    - `rtol`, `atol`: tolerances of the PID step-size controller (`atol` in metres).
-    - `max_steps`: step budget; exceeding it gives `RESULTS.solver_failed`.
-    """
-
-    solver: diffrax.AbstractSolver = diffrax.Tsit5()
-    rtol: float = 1e-10
-    atol: float = 1e-18
-    max_steps: int = 16384
-
-
-def _prony_arrays(rheology):
+def prony_arrays(rheology):
+    """`(G_inf, G, tau)` of the relaxation form, the arms as 1-D arrays."""
     prony = rheology.to_prony()
-    G_inf = as_float(prony.G_inf)
-    G = jnp.atleast_1d(as_float(prony.G))
-    tau = jnp.atleast_1d(as_float(prony.tau))
-    return G_inf, G, tau
-
-
-def _phi(x):
-    """(1 - exp(-x)) / x, with the limit 1 at x = 0."""
-    safe = jnp.where(x > 0, x, 1.0)
-    return jnp.where(x > 0, -jnp.expm1(-safe) / safe, 1.0)
-
-
-def _states_velocity(ts, velocity, arm_ratio, tau):
-    # w_k(t) = -(G_k/G_g) tau_k v (1 - exp(-t/tau_k)); shape (n, N). Written without a
-    # per-sample division, so that XLA fuses it with the front root into one pass.
-    t, arm_ratio, tau = ts[:, None], arm_ratio[None, :], tau[None, :]
-    return (arm_ratio * velocity * tau) * jnp.expm1(t * (-1.0 / tau))
-
-
-def _combine(left, right):
-    a1, b1 = left
-    a2, b2 = right
-    return a1 * a2, a2 * b1 + b2
-
-
-def _recurrence(alpha, beta):
-    """$w_i = \\alpha_i w_{i-1} + \\beta_i$, $w_{-1} = 0$, along axis 0; `beta` may carry
-    extra trailing axes (several right-hand sides share the products of the alphas)."""
-    extra = beta.ndim - alpha.ndim
-    a = alpha.reshape(alpha.shape + (1,) * extra)
-    return lax.associative_scan(_combine, (a, beta), axis=0)[1]
-
-
-def _dphi(x):
-    r"""$\phi'(x) = (e^{-x} - \phi(x))/x$ without cancellation (series below $x = 0.01$)."""
-    small = x < 0.01
-    xs = jnp.where(small, x, 0.0)
-    series = -1 / 2 + xs * (1 / 3 + xs * (-1 / 8 + xs * (1 / 30 + xs * (-1 / 144 + xs / 840))))
-    xl = jnp.where(small, 1.0, x)
-    return jnp.where(small, series, (jnp.exp(-xl) - _phi(xl)) / xl)
-
-
-def _increments(dt, tau):
-    x = dt / tau
-    return x, jnp.exp(-x), _phi(x)
-
-
-@jax.custom_jvp
-def _states_increments(dt, ddelta, arm_ratio, tau):
-    # w = L(alpha) (arm_ratio ddelta phi(x)), x = dt/tau; shapes (n, 1), (n, 1), (1, N), (1, N)
-    _, alpha, phi = _increments(dt, tau)
-    return _recurrence(alpha, arm_ratio * ddelta * phi)
-
-
-def _states_increments_jvp(primals, tangents):
-    r"""Tangents of the arm states through two fixed sensitivities.
-
-    With $u = L(\alpha)(\Delta\delta\,\phi(x))$ the states are $w = (G_k/G_g)\,u$, and
-    $v = \partial w/\partial\tau = L(\alpha)\,q$ with
-    $q = x\,[\alpha\,w_{i-1} - (G_k/G_g)\Delta\delta\,\phi'(x)]/\tau$. Both come
-    from one scan that shares the products of the $\alpha$s, so any number of tangent
-    directions (the Jacobian's columns) costs two element-wise products,
-    $\dot w = u\,\dot r + v\,\dot\tau$, and under `jax.linearize` no scan is left in the
-    linear map. Tangents of the sampling (`dt`, `ddelta`: a differentiated displacement
-    history) need their own scan and only run when present.
-    """
-    dt, ddelta, arm_ratio, tau = primals
-    t_dt, t_ddelta, t_ratio, t_tau = tangents
-    x, alpha, phi = _increments(dt, tau)
-    u = _recurrence(alpha, ddelta * phi)
-    w = arm_ratio * u
-    w_prev = jnp.concatenate([jnp.zeros_like(w[:1]), w[:-1]])
-    dphi = _dphi(x)
-    q = x * (alpha * w_prev - arm_ratio * ddelta * dphi) / tau
-    v = _recurrence(alpha, q)
-    zero = lambda t: isinstance(t, SymbolicZero)  # noqa: E731
-    dw = jnp.zeros_like(w)
-    if not zero(t_ratio):
-        dw = dw + u * t_ratio
-    if not zero(t_tau):
-        dw = dw + v * t_tau
-    if not (zero(t_dt) and zero(t_ddelta)):
-        # dw = L(alpha) (dbeta + dalpha w_prev) for the sampling's own tangents
-        forcing = jnp.zeros_like(w)
-        if not zero(t_ddelta):
-            forcing = forcing + arm_ratio * t_ddelta * phi
-        if not zero(t_dt):
-            forcing = forcing + (arm_ratio * ddelta * dphi - alpha * w_prev) * (t_dt / tau)
-        dw = dw + _recurrence(alpha, forcing)
-    return w, dw
-
-
-_states_increments.defjvp(_states_increments_jvp, symbolic_zeros=True)
-
-
-def _states_samples(ts, delta, arm_ratio, tau):
-    # exact update over each interval, the first sample responding as a step from rest
-    dt = jnp.diff(ts, prepend=ts[:1])[:, None]
-    ddelta = jnp.diff(delta, prepend=0.0)[:, None]
-    # all four of rank 2: (n, 1), (n, 1), (1, N), (1, N)
-    return _states_increments(dt, ddelta, arm_ratio[None, :], tau[None, :])
-
-
-def _states_diffrax(method, ts, velocity, delta, arm_ratio, tau):
-    if delta is None:
-        t0 = jnp.zeros_like(ts[0])
-        y0 = jnp.zeros_like(tau)
-
-        def rate(t):
-            return -velocity
-
-        jump_ts = None
-    else:
-        t0 = ts[0]
-        y0 = arm_ratio * delta[0]
-        path = diffrax.LinearInterpolation(ts=ts, ys=delta)
-
-        def rate(t):
-            return path.derivative(t)
-
-        jump_ts = ts
-
-    def vector_field(t, w, args):
-        return arm_ratio * rate(t) - w / tau
-
-    controller = diffrax.PIDController(rtol=method.rtol, atol=method.atol)
-    if jump_ts is not None:
-        controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
-    span = ts[-1] - t0
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(vector_field),
-        method.solver,
-        t0=t0,
-        t1=ts[-1],
-        dt0=jnp.maximum(span, 1e-300) * 1e-4,
-        y0=y0,
-        saveat=diffrax.SaveAt(ts=ts),
-        stepsize_controller=controller,
-        max_steps=method.max_steps,
-        throw=False,
-    )
-    ok = sol.result == diffrax.RESULTS.successful
-    return sol.ys, ok, sol.stats
+    return prony.G_inf, jnp.atleast_1d(prony.G), jnp.atleast_1d(prony.tau)
 
 
 def _segment_deff(u, depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio):
     """d_eff at time t_a + u inside a segment where d(t) is linear with `slope`."""
     e = jnp.exp(-u / tau)
-    w = w_a * e + arm_ratio * slope * u * _phi(u / tau)
+    w = w_a * e + arm_ratio * slope * u * phi(u / tau)
     return depth + delta_a + slope * u + glass_ratio * jnp.sum(w)
 
 
 def retract(
-    rheology,
+    rheology: AbstractRheology,
     profile: AbstractProfile,
-    *,
     work_of_adhesion: Float[ArrayLike, ""],
-    depth: Float[ArrayLike, ""] | None = None,
     ts: Float[ArrayLike, " n"],
-    velocity: Float[ArrayLike, ""] | None = None,
     displacement: Float[ArrayLike, " n"] | None = None,
+    *,
+    depth: Float[ArrayLike, ""] | None = None,
+    velocity: Float[ArrayLike, ""] | None = None,
     contact_radius: Float[ArrayLike, ""] | None = None,
     method: AbstractMethod = ExactUpdate(),
     throw: bool = True,
 ) -> ContactSolution:
     r"""Lift an indenter from a fully relaxed adhesive contact.
+
+    The positional arguments are those of `simulate`: `retract(rheology, profile,
+    work_of_adhesion, ts, displacement)` lifts along a sampled history; every argument may
+    also be given by keyword.
 
     **Arguments:**
 
@@ -275,26 +123,38 @@ def retract(
       shear moduli of an incompressible half-space, foundation stiffness $4G$ per length.
     - `profile`: any profile (`Parabola`, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`).
     - `work_of_adhesion`: $\Delta\gamma$ [J/m²], > 0.
+    - `ts`: sample times [s], shape `(n,)`, non-decreasing; $t = 0$ is the start of the lift
+      (>= 0 with `velocity`).
+    - `displacement`: the indentation $d(t_i)$ [m] at `ts` (a measured history); piecewise
+      linear between samples, and a step from $d_0$ at `ts[0]` if
+      `displacement[0] != depth`. Give exactly one of `displacement` and `velocity`.
     - `depth`: relaxed indentation $d_0$ [m], > 0 (positive into the sample). With
       `displacement` it defaults to `displacement[0]`.
-    - `ts`: sample times [s], shape `(n,)`, non-decreasing; $t = 0$ is the start of the lift.
     - `velocity`: lift speed $v$ [m/s], > 0: $d(t) = d_0 - v t$.
-    - `displacement`: alternatively, the indentation $d(t_i)$ [m] at `ts` (a measured
-      history); piecewise linear between samples, and a step from $d_0$ at `ts[0]` if
-      `displacement[0] != depth`. Give exactly one of `velocity` and `displacement`.
     - `contact_radius`: contact radius $a_0$ [m] of the relaxed state (default: $g(a_0) = d_0$,
-      the non-adhesive radius; a larger, adhesive radius is allowed).
+      the non-adhesive radius; a larger, adhesive radius is allowed, up to the profile's
+      `max_radius`).
     - `method`: `ExactUpdate()` (default) or `DiffraxODE(...)`.
-    - `throw`: raise on an error result (`advancing_contact`, `solver_failed`,
-      `invalid_input`); with `False` the status is returned in `.result` (use under `vmap`).
+    - `throw`: raise on an error result (invalid or implausible input,
+      `advancing_contact`, `solver_failed`, `non_finite_result`), whichever field is read;
+      with `False` the status is returned in `.result` per lane (use under `vmap`), and the
+      fields of a lane with invalid input are NaN.
 
-    **Returns:** a `ContactSolution`. `max_tensile_force` and the jump-off quantities are exact
-    on the receding front (which is a fixed JKR curve) and the jump-off time is refined
-    between samples with the exact in-segment solution.
+    Precision: float32 when every floating input is float32, float64 otherwise (Python
+    floats take the precision of the arrays they meet).
+
+    **Returns:** a `ContactSolution` (`details`: a `RetractDetails`). `max_tensile_force`
+    and the jump-off quantities are exact on the receding front (which is a fixed JKR curve)
+    and the jump-off time is refined between samples with the exact in-segment solution.
     """
     if (velocity is None) == (displacement is None):
         raise ValueError("Give exactly one of `velocity` [m/s] and `displacement` [m].")
-    check_positive("work_of_adhesion", work_of_adhesion, "J/m^2")
+    if not isinstance(rheology, AbstractRheology):
+        raise TypeError(f"`rheology` must be an AbstractRheology; got {type(rheology).__name__}.")
+    if not isinstance(profile, AbstractProfile):
+        raise TypeError(f"`profile` must be an AbstractProfile; got {type(profile).__name__}.")
+    if not isinstance(method, AbstractMethod):
+        raise TypeError(f"`method` must be ExactUpdate() or DiffraxODE(...); got {method!r}.")
     check_times(ts, require_nonnegative=velocity is not None)
     ts = as_float(ts)
     if displacement is not None:
@@ -309,12 +169,9 @@ def retract(
             depth = displacement[0]
     if depth is None:
         raise ValueError("`depth` [m] (the relaxed indentation) is required with `velocity`.")
-    check_positive("depth", depth, "m")
-    if velocity is not None:
-        check_positive("velocity", velocity, "m/s")
-    if contact_radius is not None:
-        check_positive("contact_radius", contact_radius, "m")
-
+    scalars = _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius)
+    for c in scalars:
+        c.check()
     if contact_radius is not None and is_concrete(contact_radius) and is_concrete(profile):
         amax = profile.max_radius
         if bool(jnp.asarray(contact_radius) > amax):
@@ -322,57 +179,104 @@ def retract(
                 f"`contact_radius` = {float(contact_radius):g} m exceeds the profile's size "
                 f"{float(amax):g} m."
             )
-    if not isinstance(method, ExactUpdate | DiffraxODE):
-        raise TypeError(f"`method` must be ExactUpdate() or DiffraxODE(...); got {method!r}.")
-    return _retract(
-        rheology,
-        profile,
-        as_float(work_of_adhesion),
-        as_float(depth),
-        ts,
-        None if velocity is None else as_float(velocity),
-        displacement,
-        None if contact_radius is None else as_float(contact_radius),
-        method,
-        throw,
+    check_plausibility = plausibility_enabled()
+    if check_plausibility:
+        check_domain_plausible(rheology)
+        check_domain_plausible(profile)
+        for c in scalars:
+            check_plausible(c.name, c.value, c.kind)
+        check_plausible("ts", ts, "time", magnitude=True)
+        check_plausible("displacement", displacement, "length", magnitude=True)
+    dtype = float_dtype(rheology, profile, work_of_adhesion, depth, ts, velocity, displacement,
+                        contact_radius)
+    args = cast_floats(
+        (rheology, profile, as_float(work_of_adhesion), as_float(depth), ts,
+         None if velocity is None else as_float(velocity), displacement,
+         None if contact_radius is None else as_float(contact_radius)),
+        dtype,
     )
+    return _retract(*args, method, throw, check_plausibility)
+
+
+def _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius):
+    out = [Constraint("work_of_adhesion", work_of_adhesion, "J/m^2", kind="work_of_adhesion"),
+           Constraint("depth", depth, "m", kind="length")]
+    if velocity is not None:
+        out.append(Constraint("velocity", velocity, "m/s", kind="velocity"))
+    if contact_radius is not None:
+        out.append(Constraint("contact_radius", contact_radius, "m", kind="length"))
+    return out
+
+
+def _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
+                  contact_radius, check_plausibility):
+    """`(ok, RESULTS item)` of every input, in the order of the arguments."""
+    items = dict(work_of_adhesion=RESULTS.invalid_work_of_adhesion,
+                 depth=RESULTS.invalid_depth, velocity=RESULTS.invalid_velocity,
+                 contact_radius=RESULTS.invalid_contact_radius)
+    scalars = _scalar_constraints(dgamma, depth, velocity, contact_radius)
+    checks = [(domain_ok(rheology), RESULTS.invalid_rheology),
+              (domain_ok(profile), RESULTS.invalid_profile)]
+    checks += [(c.ok(), items[c.name]) for c in scalars]
+    checks.append((times_ok(ts, require_nonnegative=velocity is not None),
+                   RESULTS.invalid_times))
+    if displacement is not None:
+        checks.append((jnp.all(jnp.isfinite(displacement)), RESULTS.invalid_displacement))
+    if contact_radius is not None:
+        checks.append((contact_radius <= profile.max_radius, RESULTS.invalid_contact_radius))
+    if check_plausibility:
+        ok = domain_plausible(rheology) & domain_plausible(profile)
+        for c in scalars:
+            ok = ok & plausible(c.value, c.kind)
+        ok = ok & plausible(ts, "time", magnitude=True)
+        if displacement is not None:
+            ok = ok & plausible(displacement, "length", magnitude=True)
+        checks.append((ok, RESULTS.implausible_input))
+    return checks
 
 
 @eqx.filter_jit
 def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, contact_radius, method,
-             throw):
-    G_inf, G, tau = _prony_arrays(rheology)
+             throw, check_plausibility):
+    with unchecked():
+        checks = _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
+                               contact_radius, check_plausibility)
+        sol = _solve(rheology, profile, dgamma, depth, ts, velocity, displacement,
+                     contact_radius, method)
+    inputs_ok = jnp.asarray(True)
+    for ok, _ in checks:
+        inputs_ok = inputs_ok & ok
+    result = fold_results(sol.result, checks)
+    sol = eqx.tree_at(lambda s: s.result, sol, result)
+    if throw:
+        return result.error_if(sol, is_error(result))
+    # a lane with invalid input: NaN (not numbers that look plausible)
+    return nan_where(jnp.logical_not(inputs_ok), sol)
+
+
+def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact_radius, method):
+    G_inf, G, tau = prony_arrays(rheology)
     G_g = G_inf + jnp.sum(G)
     arm_ratio = G / G_g
     glass_ratio = G_g / G_inf
-    a0 = profile_radius(profile, depth) if contact_radius is None else contact_radius
+    a0 = profile.contact_radius(depth) if contact_radius is None else contact_radius
 
     # ---- internal variables w_k(t_i), shape (n, N) -------------------------------------
     if velocity is not None:
         delta = -velocity * ts
     else:
         delta = displacement - depth
-    ode_ok = jnp.asarray(True)
-    stats = {}
-    if isinstance(method, ExactUpdate):
-        if velocity is not None:
-            w = _states_velocity(ts, velocity, arm_ratio, tau)
-        else:
-            w = _states_samples(ts, delta, arm_ratio, tau)
-    elif isinstance(method, DiffraxODE):
-        w, ode_ok, stats = _states_diffrax(
-            method, ts, velocity, None if velocity is not None else delta, arm_ratio, tau
-        )
+    w, ode_ok, solver_steps = method.arm_states(ts, velocity, delta, arm_ratio, tau)
     d = depth + delta
     d_eff = d + glass_ratio * jnp.sum(w, axis=-1)
 
     # ---- the front -----------------------------------------------------------------------
     c = jnp.sqrt(0.5 * jnp.pi * dgamma * G_g) / G_inf
-    a_fold = _critical_radius(profile, c, 0.5)
-    a_fc = _critical_radius(profile, c, 1.5)
-    h_pin = _front_displacement(profile, a0, c)
+    a_fold = profile.critical_radius(c, 0.5)
+    a_fc = profile.critical_radius(c, 1.5)
+    h_pin = front_displacement(profile, a0, c)
     a_crit = jnp.minimum(a_fold, a0)
-    h_crit = _front_displacement(profile, a_crit, c)
+    h_crit = front_displacement(profile, a_crit, c)
     can_recede = a0 > a_fold
 
     if velocity is not None:
@@ -385,12 +289,8 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     receding = attached & (m < h_pin) & can_recede
     # safe input for lanes not on the receding front: the root at max(a0, 2 a_fold)
     a_safe = jnp.maximum(a0, 2 * a_fold)
-    m_safe = jnp.where(receding, m, _front_displacement(profile, a_safe, c))
-    if isinstance(profile, Parabola | Cone):
-        a_root = _stable_radius(profile, m_safe, c, None, None)
-    else:
-        hi = jnp.maximum(a0, a_safe)
-        a_root = jax.vmap(lambda mm: _stable_radius(profile, mm, c, a_fold, hi))(m_safe)
+    m_safe = jnp.where(receding, m, front_displacement(profile, a_safe, c))
+    a_root = profile.front_radius(m_safe, c, a_fold, jnp.maximum(a0, a_safe))
     radius = jnp.where(receding, a_root, jnp.where(attached, a0, 0.0))
     radius_safe = jnp.where(attached, radius, a0)
 
@@ -404,12 +304,14 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     i_j = jnp.argmax(jnp.logical_not(attached))
     jumpoff_force_value = force_at(a_crit, h_crit)
     # the receding front is the fixed JKR curve F(a) = 8 G_inf (a h(a) - I(a)): its minimum over
-    # the radii visited, [a_end, a0], is at clip(a_fc, a_end, a0)
+    # the radii visited, [a_end, a0], is at clip(a_fc, a_end, a0). Where the front was
+    # visited this is the largest tensile force (no sample is below it: a pinned sample has
+    # F(a0, d_eff) >= F(a0, h(a0))); elsewhere the smallest sample.
     a_end = jnp.where(detached, a_crit, radius[-1])
     visited = detached | receding[-1]
     a_min = jnp.clip(a_fc, a_end, a0)
-    f_front = force_at(a_min, _front_displacement(profile, a_min, c))
-    max_tensile = jnp.minimum(jnp.min(force), jnp.where(visited, f_front, jnp.inf))
+    f_front = force_at(a_min, front_displacement(profile, a_min, c))
+    max_tensile = jnp.where(visited, f_front, smallest(force))
 
     # jump-off time inside the segment (t_prev, t_j]
     has_prev = i_j > 0
@@ -436,9 +338,9 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     def resid(u):
         return _segment_deff(u, *seg_args) - h_target
 
-    u_j = bracketed_root(resid, 0.0, span_safe, steps=64)
+    u_j = bracketed_root(resid, jnp.zeros_like(span_safe), span_safe, steps=64)
     t_j = jnp.where(seg_ok, t_a + u_j, ts[i_j])
-    nan = jnp.asarray(jnp.nan)
+    nan = jnp.asarray(jnp.nan, ts.dtype)
     jumpoff_time = jnp.where(detached, t_j, nan)
     jumpoff_disp = jnp.where(detached, depth + delta_a + slope * (t_j - t_a), nan)
     jumpoff_force = jnp.where(detached, jumpoff_force_value, nan)
@@ -446,23 +348,26 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
 
     # ---- status ---------------------------------------------------------------------------
     result = RESULTS.where(detached, RESULTS.detached, RESULTS.in_contact)
-    if not isinstance(profile, FlatPunch):
-        g_touch = profile.g(a0)
-        advancing = jnp.any(d > g_touch + 1e-9 * depth + 1e-15)
-        result = RESULTS.where(advancing, RESULTS.advancing_contact, result)
+    # the indenter must not go beyond the gap just outside the initial contact (infinite at
+    # the edge of a bounded shape: a flat punch cannot advance); with the non-adhesive
+    # initial radius that gap is the depth itself (no round-off from g(a0))
+    g_out = lax.stop_gradient(profile.g(jnp.nextafter(a0, jnp.inf)))
+    touch = g_out if contact_radius is not None else jnp.maximum(depth, g_out)
+    rel = max(1e-9, 64 * float(jnp.finfo(ts.dtype).eps))
+    advancing = jnp.any(d > touch + rel * depth + 1e-15)
+    result = RESULTS.where(advancing, RESULTS.advancing_contact, result)
     result = RESULTS.where(ode_ok, result, RESULTS.solver_failed)
     finite = jnp.all(jnp.isfinite(force)) & jnp.all(jnp.isfinite(radius))
-    result = RESULTS.where(finite, result, RESULTS.invalid_input)
-    if throw:
-        force = result.error_if(force, is_error(result))
+    finite = finite & jnp.isfinite(max_tensile)
+    result = RESULTS.where(finite, result, RESULTS.non_finite_result)
 
-    stats = dict(stats)
-    stats.update(
+    details = RetractDetails(
+        initial_radius=a0,
         fold_radius=a_fold,
         force_control_radius=a_fc,
-        initial_radius=a0,
         effective_displacement=d_eff,
         effective_work_of_adhesion=dgamma * glass_ratio,
+        solver_steps=jnp.asarray(solver_steps),
     )
     return ContactSolution(
         ts=ts,
@@ -474,7 +379,7 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
         jumpoff_force=jumpoff_force,
         jumpoff_radius=jumpoff_radius,
         jumpoff_displacement=jumpoff_disp,
+        jumpoffs=detached.astype(jnp.int32),
         result=result,
-        stats=stats,
+        details=details,
     )
-

@@ -24,17 +24,22 @@ paper's standard model is `StandardModel`; `Elastic` has no arms.
 
 Each rheology is an `equinox.Module` (a pytree). Scalar parameters must be 0-d and arm
 parameters 1-D; to batch over parameters construct the rheology inside `jax.vmap` (or vmap
-over a rheology whose leaves carry a leading batch axis).
+over a rheology whose leaves carry a leading batch axis). Parameters are checked when the
+rheology is built from concrete values (`ValueError`); under `jit`/`vmap` its methods raise
+at run time for parameters outside their domain (`domain()`), and the entry functions
+(`retract`, `simulate`) report them per lane as `RESULTS.invalid_rheology`.
 """
 
 from __future__ import annotations
+
+import abc
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from ._solvers import as_float
-from ._validate import check_positive
+from ._validate import Constraint, guarded
 
 # Shape-annotated aliases (kept out of annotations so that linters do not parse the strings).
 Scalar = Float[Array, ""]
@@ -111,44 +116,54 @@ class AbstractRheology(eqx.Module):
     - `creep(t)`: creep compliance $J(t)$ [1/Pa] for $t \ge 0$ [s];
     - `complex_modulus(omega)`: $G^*(\omega)$ [Pa] at angular frequency $\omega$ [rad/s];
     - `complex_compliance(omega)`: $J^*(\omega) = 1/G^*(\omega)$ [1/Pa];
-    - `to_prony()`, `to_creep_chain()`: the exact relaxation / creep forms.
+    - `to_prony()`, `to_creep_chain()`: the exact relaxation / creep forms;
+    - `domain()`: the parameters and their allowed ranges (`Constraint`s).
 
-    Subclasses must implement `to_prony` and `to_creep_chain`; the rest defaults to them.
+    Every subclass implements all of them (abstract here: no concrete method is
+    overridden), closed forms where it has them and the other form otherwise.
     """
 
+    def __check_init__(self):
+        for constraint in self.domain():
+            constraint.check()
+
+    @abc.abstractmethod
+    def domain(self) -> tuple[Constraint, ...]:
+        """The parameters and their allowed ranges."""
+
     @property
+    @abc.abstractmethod
     def glass_modulus(self) -> Array:
         """Instantaneous (glass) modulus $G(0^+)$ [Pa]."""
-        return self.to_creep_chain().G0
 
     @property
+    @abc.abstractmethod
     def relaxed_modulus(self) -> Array:
         r"""Relaxed (long-time) modulus $G_\infty$ [Pa]."""
-        return self.to_prony().G_inf
 
+    @abc.abstractmethod
     def relaxation(self, t: TimeLike) -> Real:
         """Relaxation modulus $G(t)$ [Pa] at times `t` [s] (t >= 0), elementwise."""
-        return self.to_prony().relaxation(t)
 
+    @abc.abstractmethod
     def creep(self, t: TimeLike) -> Real:
         """Creep compliance $J(t)$ [1/Pa] at times `t` [s] (t >= 0), elementwise."""
-        return self.to_creep_chain().creep(t)
 
+    @abc.abstractmethod
     def complex_modulus(self, omega: TimeLike) -> Cplx:
         r"""Complex modulus $G^*(\omega) = G' + iG''$ [Pa] at `omega` [rad/s], elementwise."""
-        return self.to_prony().complex_modulus(omega)
 
+    @abc.abstractmethod
     def complex_compliance(self, omega: TimeLike) -> Cplx:
         r"""Complex compliance $J^*(\omega) = 1/G^*(\omega)$ [1/Pa] at `omega` [rad/s]."""
-        return self.to_creep_chain().complex_compliance(omega)
 
+    @abc.abstractmethod
     def to_prony(self) -> PronySeries:
         """The equivalent relaxation form (`PronySeries`)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def to_creep_chain(self) -> CreepChain:
         """The equivalent creep form (`CreepChain`)."""
-        raise NotImplementedError
 
 
 # --------------------------------------------------------------------------------------
@@ -182,32 +197,45 @@ class PronySeries(AbstractRheology):
     def __check_init__(self):
         _check_scalar("G_inf", self.G_inf)
         _check_arms(("G", "tau"), self.G, self.tau)
-        check_positive("G_inf", self.G_inf, "Pa")
-        check_positive("G", self.G, "Pa")
-        check_positive("tau", self.tau, "s")
+
+    def domain(self):
+        return (Constraint("G_inf", self.G_inf, "Pa", kind="modulus"),
+                Constraint("G", self.G, "Pa", kind="modulus"),
+                Constraint("tau", self.tau, "s", kind="time"))
 
     @property
+    @guarded
     def glass_modulus(self):
         return self.G_inf + jnp.sum(self.G)
 
     @property
+    @guarded
     def relaxed_modulus(self):
         return self.G_inf
 
+    @guarded
     def relaxation(self, t):
         return self.G_inf + _exp_sum(self.G, self.tau, t, one_minus=False)
 
+    @guarded
+    def creep(self, t):
+        return self.to_creep_chain().creep(t)
+
+    @guarded
     def complex_modulus(self, omega):
         w = jnp.asarray(omega)[..., None]
         iwt = 1j * w * _trailing(self.tau, w.ndim)
         return self.G_inf + jnp.sum(_trailing(self.G, w.ndim) * iwt / (1 + iwt), axis=-1)
 
+    @guarded
     def complex_compliance(self, omega):
         return 1.0 / self.complex_modulus(omega)
 
+    @guarded
     def to_prony(self):
         return self
 
+    @guarded
     def to_creep_chain(self) -> CreepChain:
         r"""Exact creep form (retardation times in increasing order).
 
@@ -262,37 +290,51 @@ class CreepChain(AbstractRheology):
     def __check_init__(self):
         _check_scalar("G0", self.G0)
         _check_arms(("G", "eta"), self.G, self.eta)
-        check_positive("G0", self.G0, "Pa")
-        check_positive("G", self.G, "Pa")
-        check_positive("eta", self.eta, "Pa s")
+
+    def domain(self):
+        return (Constraint("G0", self.G0, "Pa", kind="modulus"),
+                Constraint("G", self.G, "Pa", kind="modulus"),
+                Constraint("eta", self.eta, "Pa s", kind="viscosity"))
 
     @property
+    @guarded
     def retardation_time(self) -> Arms:
         r"""Retardation times $\theta_k = \eta_k/G_k$ [s], shape `(N,)`."""
         return self.eta / self.G
 
     @property
+    @guarded
     def glass_modulus(self):
         return self.G0
 
     @property
+    @guarded
     def relaxed_modulus(self):
         return 1.0 / (1.0 / self.G0 + jnp.sum(1.0 / self.G))
 
+    @guarded
+    def relaxation(self, t):
+        return self.to_prony().relaxation(t)
+
+    @guarded
     def creep(self, t):
         return 1.0 / self.G0 + _exp_sum(1.0 / self.G, self.retardation_time, t, one_minus=True)
 
+    @guarded
     def complex_compliance(self, omega):
         w = jnp.asarray(omega)[..., None]
         iwt = 1j * w * _trailing(self.retardation_time, w.ndim)
         return 1.0 / self.G0 + jnp.sum(1.0 / (_trailing(self.G, w.ndim) * (1 + iwt)), axis=-1)
 
+    @guarded
     def complex_modulus(self, omega):
         return 1.0 / self.complex_compliance(omega)
 
+    @guarded
     def to_creep_chain(self):
         return self
 
+    @guarded
     def to_prony(self) -> PronySeries:
         r"""Exact relaxation form (relaxation times in increasing order).
 
@@ -335,31 +377,41 @@ class Elastic(AbstractRheology):
 
     def __check_init__(self):
         _check_scalar("G", self.G)
-        check_positive("G", self.G, "Pa")
+
+    def domain(self):
+        return (Constraint("G", self.G, "Pa", kind="modulus"),)
 
     @property
+    @guarded
     def glass_modulus(self):
         return self.G
 
     @property
+    @guarded
     def relaxed_modulus(self):
         return self.G
 
+    @guarded
     def relaxation(self, t):
         return jnp.broadcast_to(self.G, jnp.shape(t))
 
+    @guarded
     def creep(self, t):
         return 1.0 / self.relaxation(t)
 
+    @guarded
     def complex_modulus(self, omega):
         return self.relaxation(omega) + 0j
 
+    @guarded
     def complex_compliance(self, omega):
         return 1.0 / self.complex_modulus(omega)
 
+    @guarded
     def to_prony(self):
         return PronySeries(self.G, _empty_like(self.G), _empty_like(self.G))
 
+    @guarded
     def to_creep_chain(self):
         return CreepChain(self.G, _empty_like(self.G), _empty_like(self.G))
 
@@ -389,50 +441,62 @@ class StandardModel(AbstractRheology):
     def __check_init__(self):
         for name in ("G0", "G1", "eta1"):
             _check_scalar(name, getattr(self, name))
-        check_positive("G0", self.G0, "Pa")
-        check_positive("G1", self.G1, "Pa")
-        check_positive("eta1", self.eta1, "Pa s")
+
+    def domain(self):
+        return (Constraint("G0", self.G0, "Pa", kind="modulus"),
+                Constraint("G1", self.G1, "Pa", kind="modulus"),
+                Constraint("eta1", self.eta1, "Pa s", kind="viscosity"))
 
     @property
+    @guarded
     def tau(self) -> Scalar:
         r"""Relaxation time at fixed strain $\tau = \eta_1/(G_0 + G_1)$ [s]."""
         return self.eta1 / (self.G0 + self.G1)
 
     @property
+    @guarded
     def retardation_time(self) -> Scalar:
         r"""Retardation (creep) time $\theta = \eta_1/G_1$ [s]."""
         return self.eta1 / self.G1
 
     @property
+    @guarded
     def glass_modulus(self):
         return self.G0
 
     @property
+    @guarded
     def relaxed_modulus(self):
         return self.G0 * self.G1 / (self.G0 + self.G1)
 
     def _arm(self):
         return self.G0**2 / (self.G0 + self.G1)
 
+    @guarded
     def relaxation(self, t):
         t = jnp.asarray(t)
         return self.relaxed_modulus + self._arm() * jnp.exp(-t / self.tau)
 
+    @guarded
     def creep(self, t):
         t = jnp.asarray(t)
         return 1.0 / self.G0 - jnp.expm1(-t / self.retardation_time) / self.G1
 
+    @guarded
     def complex_modulus(self, omega):
         iwt = 1j * jnp.asarray(omega) * self.tau
         return self.relaxed_modulus + self._arm() * iwt / (1 + iwt)
 
+    @guarded
     def complex_compliance(self, omega):
         iwt = 1j * jnp.asarray(omega) * self.retardation_time
         return 1.0 / self.G0 + 1.0 / (self.G1 * (1 + iwt))
 
+    @guarded
     def to_prony(self):
         return PronySeries(self.relaxed_modulus, self._arm()[None], self.tau[None])
 
+    @guarded
     def to_creep_chain(self):
         return CreepChain(self.G0, self.G1[None], self.eta1[None])
 

@@ -1,4 +1,10 @@
-r"""Scalar root finding with implicit differentiation.
+r"""Scalar root finding with implicit differentiation (the one home of the root finders).
+
+- `bracketed_root`: any sign change on a bracket (safeguarded Newton, below).
+- `concave_root`: the root of a function that is concave on its bracket (monotone Newton
+  from the right end, a fixed number of steps; the detachment front of the foundation).
+- `newton_root`: damped Newton steps from a guess for an increasing function (the
+  equilibrium of a compliant loading system).
 
 `bracketed_root` solves $f(x) = 0$ on a bracket $[x_\mathrm{lo}, x_\mathrm{hi}]$ with a
 safeguarded Newton iteration: it starts from the regula-falsi point of the bracket, takes the
@@ -25,16 +31,16 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-__all__ = ["bracketed_root"]
+__all__ = ["bracketed_root", "concave_root", "newton_root"]
 
 
-def _solve(fn, lo, hi, steps):
-    lo = lax.stop_gradient(lo)
-    hi = lax.stop_gradient(hi)
+def _solve(fn, lo, hi, steps, dtype):
+    lo = lax.stop_gradient(jnp.asarray(lo, dtype))
+    hi = lax.stop_gradient(jnp.asarray(hi, dtype))
     eps4 = 4.0 * jnp.finfo(jnp.result_type(lo, hi)).eps
     width0 = jnp.abs(hi - lo)
-    f_lo = fn(lo)
-    f_hi = fn(hi)
+    f_lo = fn(lo).astype(dtype)
+    f_hi = fn(hi).astype(dtype)
     sign_lo = jnp.sign(f_lo)
     mid = 0.5 * (lo + hi)
     # regula falsi start (the midpoint if it is not strictly inside the bracket)
@@ -52,6 +58,8 @@ def _solve(fn, lo, hi, steps):
     def body(carry):
         i, lo, hi, x, prev_step, done = carry
         fx, dfx = jax.jvp(fn, (x,), (jnp.ones_like(x),))
+        # `fn` may close over arrays of a wider dtype: the carry keeps the bracket's
+        fx, dfx = fx.astype(dtype), dfx.astype(dtype)
         same_as_lo = jnp.sign(fx) == sign_lo
         lo_n = jnp.where(same_as_lo, x, lo)
         hi_n = jnp.where(same_as_lo, hi, x)
@@ -61,7 +69,7 @@ def _solve(fn, lo, hi, steps):
         x_new = jnp.where(inside, newton, 0.5 * (lo_n + hi_n))
         step = jnp.abs(x_new - x)
         zero = fx == 0
-        x_new = jnp.where(zero, x, x_new)
+        x_new = jnp.where(zero, x, x_new).astype(dtype)
         floor = inside & (step <= 1e-9 * width0) & (step >= 0.9 * prev_step)
         stop = (
             zero
@@ -107,11 +115,87 @@ def bracketed_root(
     """
     lo = jnp.asarray(lo)
     hi = jnp.asarray(hi)
+    # the precision of the bracket and of the function: a Python-float bracket (weakly
+    # typed) takes that of the function's values
+    dtype = jnp.result_type(lo, hi, jax.eval_shape(fn, lo).dtype)
 
     def solve(f, _guess):
-        return _solve(f, lo, hi, steps)
+        return _solve(f, lo, hi, steps, dtype)
 
     def tangent_solve(g, y):
         return y / g(jnp.ones_like(y))
 
-    return lax.custom_root(fn, 0.5 * (lo + hi), solve, tangent_solve)
+    guess = jnp.asarray(0.5 * (lo + hi), dtype)
+    return lax.custom_root(fn, guess, solve, tangent_solve)
+
+
+def concave_root(
+    fn: Callable[[jax.Array], jax.Array],
+    lo: jax.Array,
+    hi: jax.Array,
+    *,
+    steps: int,
+) -> jax.Array:
+    r"""Root of `fn` in `[lo, hi]` with `fn(lo) >= 0 > fn(hi)` and `fn` concave there.
+
+    Newton's method started at `hi` converges monotonically from the right for a concave
+    function (each tangent lies above the graph); a bisection guard keeps the iterate inside
+    the shrinking bracket. Runs `steps` iterations (static; no early stop, so that it costs
+    the same on every lane). Differentiated implicitly (`jax.lax.custom_root`).
+    """
+    lo = lax.stop_gradient(lo)
+    hi = lax.stop_gradient(hi)
+
+    def solve(f, _guess):
+        def body(_, carry):
+            a, b, x = carry
+            fx, dfx = jax.jvp(f, (x,), (jnp.ones_like(x),))
+            a = jnp.where(fx >= 0, x, a)
+            b = jnp.where(fx >= 0, b, x)
+            newton = x - fx / jnp.where(dfx == 0, 1.0, dfx)
+            good = (dfx != 0) & jnp.isfinite(newton) & (newton >= a) & (newton <= b)
+            x_new = jnp.where(good, newton, 0.5 * (a + b))
+            return a, b, jnp.where(fx == 0, x, x_new).astype(x.dtype)
+
+        return lax.fori_loop(0, steps, body, (lo, hi, hi))[2]
+
+    def tangent_solve(g, y):
+        slope = g(jnp.ones_like(y))
+        return y / jnp.where(slope == 0, 1.0, slope)
+
+    return lax.custom_root(fn, hi, solve, tangent_solve)
+
+
+def newton_root(
+    fn: Callable[[jax.Array], jax.Array],
+    guess: jax.Array,
+    *,
+    steps: int,
+    slope_floor: jax.Array,
+    fallback_slope: jax.Array,
+    tangent_floor: jax.Array,
+) -> jax.Array:
+    r"""Root of an increasing scalar function by a fixed number of damped Newton steps.
+
+    Each step divides by the slope $f'(x)$ where it exceeds `slope_floor`, and by
+    `fallback_slope` elsewhere (a damped step where the function is flat or decreasing:
+    e.g. a loading spring of stiffness $k$ in series with a contact whose stiffness is about
+    to vanish). `steps` (static) iterations from `guess`, no early stop and no convergence
+    check (the caller checks the residual). Differentiated implicitly; the tangent divides
+    by the slope at the root, or by `fallback_slope` where its magnitude is below
+    `tangent_floor`.
+    """
+
+    def solve(f, x0):
+        def body(_, x):
+            fx, dfx = jax.jvp(f, (x,), (jnp.ones_like(x),))
+            dfx = jnp.where(dfx > slope_floor, dfx, fallback_slope)
+            return x - fx / dfx
+
+        return lax.fori_loop(0, steps, body, lax.stop_gradient(x0))
+
+    def tangent_solve(g, y):
+        slope = g(jnp.ones_like(y))
+        return y / jnp.where(jnp.abs(slope) > tangent_floor, slope, fallback_slope)
+
+    return lax.custom_root(fn, guess, solve, tangent_solve)

@@ -4,11 +4,17 @@ The bracketed scalar root finder with implicit derivatives lives in `_root.py`
 (`bracketed_root`); this module holds the other helpers:
 
 - `golden_section`: shrink a bracket around the minimum of a unimodal scalar function.
+- `newton_iterate`, `implicit_extremum`: Newton's method on $f'(x) = 0$ for a stationary
+  point without derivatives, and the one Newton step that gives it the implicit derivative.
 - `quadratic_newton_form`, `quadratic_at`, `quadratic_vertex`: the quadratic through three
   points in Newton's divided-difference form, its value and its stationary point.
+- `smallest`: the minimum of several estimates with the derivative of one of them.
 - `safe_div`: division that returns a fallback where the denominator vanishes (no NaN in
   either branch of a `jnp.where`, so gradients stay finite).
-- `as_float`, `floats_to_arrays`: conversion of inputs to floating arrays.
+- `as_float`, `float_dtype`, `cast_floats`: conversion of inputs to floating arrays and the
+  precision policy of the entry functions (float32 when every floating input is float32,
+  float64 otherwise; Python scalars are weakly typed and take the precision of the arrays
+  they meet, as in JAX).
 """
 
 from __future__ import annotations
@@ -23,15 +29,19 @@ from jaxtyping import Array
 
 __all__ = [
     "as_float",
-    "floats_to_arrays",
+    "cast_floats",
+    "float_dtype",
     "golden_section",
+    "implicit_extremum",
+    "newton_iterate",
     "quadratic_at",
     "quadratic_newton_form",
     "quadratic_vertex",
     "safe_div",
+    "smallest",
 ]
 
-_GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
+_GOLDEN = float(0.5 * (np.sqrt(5.0) - 1.0))  # a Python float: weakly typed
 
 
 def as_float(x) -> Array:
@@ -42,19 +52,51 @@ def as_float(x) -> Array:
     return x if jnp.issubdtype(x.dtype, jnp.inexact) else x.astype(float)
 
 
-def floats_to_arrays(tree):
-    """Python and NumPy floats in `tree` become float arrays, weakly typed arrays strongly
-    typed (the cache key of a compiled program holds the types, not the values, so one
-    program serves every value)."""
+def _is_float_leaf(leaf) -> bool:
+    if isinstance(leaf, bool | int | np.integer | np.bool_):
+        return False
+    if isinstance(leaf, float | np.floating):
+        return True
+    return isinstance(leaf, jax.Array | np.ndarray) and jnp.issubdtype(leaf.dtype, jnp.floating)
+
+
+def float_dtype(*trees):
+    """The precision of a computation on the floating leaves of `trees`.
+
+    float32 when every floating array is float32 (Python floats, being weakly typed, do
+    not count), float64 (the default float) when any is float64 or when there is no
+    floating array at all. Integer leaves (counts, options) do not take part.
+    """
+    leaves = [leaf for leaf in jax.tree_util.tree_leaves(trees) if _is_float_leaf(leaf)]
+    return jnp.result_type(*leaves, 0.0) if leaves else jnp.result_type(0.0)
+
+
+def cast_floats(tree, dtype):
+    """Every floating leaf of `tree` (Python floats included) as a strongly typed array of
+    `dtype`; other leaves unchanged.
+
+    The cache key of a compiled program holds the types, not the values, so after this one
+    program serves every value of the parameters (a Python float field would otherwise be
+    a static value and recompile the program on every new value).
+    """
 
     def convert(leaf):
-        if isinstance(leaf, float | np.floating):
-            return jnp.asarray(leaf, dtype=float)
-        if isinstance(leaf, jax.Array) and getattr(leaf, "weak_type", False):
-            return lax.convert_element_type(leaf, leaf.dtype)
-        return leaf
+        if not _is_float_leaf(leaf):
+            return leaf
+        return lax.convert_element_type(jnp.asarray(leaf), dtype)
 
     return jax.tree_util.tree_map(convert, tree)
+
+
+def smallest(values: Array) -> Array:
+    """The smallest entry of `values`, with the derivative of the first smallest one.
+
+    (`jnp.minimum` and `jnp.min` split the derivative of a tie between the tied entries,
+    which mixes different sensitivities where two estimates of one quantity coincide; here
+    the order of the entries is the order of preference.)
+    """
+    values = jnp.ravel(values)
+    return values[jnp.argmin(values)]
 
 
 def safe_div(num, den, fallback=0.0):
@@ -93,6 +135,73 @@ def golden_section(
         return jnp.where(left, lo, x1), jnp.where(left, x2, hi)
 
     return lax.fori_loop(0, steps, body, (lax.stop_gradient(lo), lax.stop_gradient(hi)))
+
+
+def newton_iterate(
+    df: Callable[[Array], Array],
+    x0: Array,
+    lo: Array,
+    hi: Array,
+    *,
+    steps: int,
+    max_step: Array | None = None,
+) -> Array:
+    r"""Newton's method on $f'(x) = 0$ for a stationary point of a scalar function.
+
+    `steps` iterations (static) from `x0`, each clipped to `[lo, hi]`; a non-finite step
+    (and, with `max_step`, a step not smaller than `max_step`: a polish that must not jump
+    across a kink) leaves the iterate where it is. No derivatives flow through the
+    iterations: follow with `implicit_extremum` for them.
+
+    **Arguments:** `df`: $f'$, a scalar function of a scalar (it may close over
+    parameters); `x0`, `lo`, `hi`: start and bounds.
+
+    **Returns:** the last iterate (derivative-free).
+    """
+    lo, hi = lax.stop_gradient(lo), lax.stop_gradient(hi)
+    d2f = jax.grad(df)
+
+    def body(_, x):
+        step = df(x) / d2f(x)
+        ok = jnp.isfinite(step)
+        if max_step is not None:
+            ok = ok & (jnp.abs(step) < max_step)
+        return jnp.clip(jnp.where(ok, x - step, x), lo, hi)
+
+    x0 = lax.stop_gradient(jnp.clip(x0, lo, hi))
+    return lax.stop_gradient(lax.fori_loop(0, steps, body, x0))
+
+
+def implicit_extremum(
+    df: Callable[[Array], Array],
+    x: Array,
+    lo: Array,
+    hi: Array,
+    *,
+    maximum: bool,
+    ok: Array | bool = True,
+    fallback: Array | None = None,
+    keep_value: bool = False,
+) -> Array:
+    r"""A stationary point `x` of $f$, located without derivatives, made differentiable.
+
+    One Newton step on $f'(x) = 0$ at `x` with derivatives carries the implicit
+    derivative of the extremum, $\mathrm{d}x/\mathrm{d}p = -\partial_p f'/f''$, where `x`
+    is an interior extremum of the requested kind: `lo < x < hi`, $f''$ finite with the sign
+    of a maximum (`maximum=True`, $f'' < 0$) or a minimum ($f'' > 0$), and `ok`. Elsewhere
+    the result is `fallback` (default `x` itself).
+
+    With `keep_value=True` the step enters only the derivative (the value stays `x`);
+    otherwise the value also moves by the (converged, round-off sized) Newton step.
+    """
+    curv = jax.grad(df)(x)
+    sign_ok = curv < 0 if maximum else curv > 0
+    good = ok & sign_ok & jnp.isfinite(curv) & (x > lo) & (x < hi)
+    slope = df(x)
+    if keep_value:
+        slope = slope - lax.stop_gradient(slope)
+    moved = x - slope / jnp.where(good, curv, -1.0 if maximum else 1.0)
+    return jnp.where(good, moved, x if fallback is None else fallback)
 
 
 def quadratic_newton_form(x0, x1, x2, y0, y1, y2, ok=True) -> tuple[Array, Array]:

@@ -34,9 +34,15 @@ import numpy as np
 from jax.lax.linalg import tridiagonal_solve
 from jaxtyping import Array
 
-from ._profiles import AbstractProfile
+from ._profiles import (
+    AbstractCurvedProfile,
+    numerical_contact_radius,
+    numerical_critical_radius,
+    numerical_front_radius,
+    numerical_stationary_radius,
+)
 from ._solvers import as_float
-from ._validate import check_finite, is_concrete
+from ._validate import Condition, Constraint, check_finite, guarded, is_concrete
 
 __all__ = ["Tabulated"]
 
@@ -243,7 +249,7 @@ def _evaluate(kind: str, x, r: Array, f: Array) -> Array:
 # ---------------------------------------------------------------------------------------
 
 
-class Tabulated(AbstractProfile):
+class Tabulated(AbstractCurvedProfile):
     r"""Axisymmetric profile $f(r)$ from a table, e.g. a measured AFM tip shape.
 
     **Arguments:**
@@ -259,11 +265,9 @@ class Tabulated(AbstractProfile):
     interpolated by a not-a-knot cubic spline, and every MDR quantity (`g`, `dg`, `d2g`,
     `integral_g`) is the exact transform of that spline, integrated in closed form (see the
     module docstring). The only error is that of the spline, which reproduces cubic
-    polynomials exactly (parabola, cone, $c r^3$: relative error $\lesssim 10^{-10}$ at every
-    $x$, rounding only). Measured against the closed forms with a uniform table of 4000
-    points (tests), power laws $n$ = 1.5, 2.5, 4: relative error of `g`, `dg`, `integral_g`
-    at most 1.8e-9, 3.0e-7, 2.9e-10 for $x \ge 0.03\,r_\max$, and 3e-11, 1.3e-8, 2.4e-12 for
-    $x \ge 0.1\,r_\max$. Relative accuracy degrades towards the axis (about
+    polynomials exactly (parabola, cone, $c r^3$: rounding only) and shrinks quickly with the
+    spacing $h$ for smooth shapes (`tests/test_tabulated.py` measures it against the closed
+    forms of power laws). Relative accuracy degrades towards the axis (about
     $(h/x)^{2\ldots4}$: the profile there is flat and carried by few points); cluster the
     table points towards $r = 0$ if small contacts matter. `d2g` is one order less accurate
     than `dg`.
@@ -272,8 +276,9 @@ class Tabulated(AbstractProfile):
     are finite and smooth but not backed by data. Every method is elementwise over `x` of any
     shape (memory `x.size * len(r)`), and differentiable with respect to `x` and to the table
     values. Use float64 (the package default): the closed-form sums lose up to about
-    `eps * (r_max / h)^2` in relative accuracy. In float32 a parabola tabulated with 200
-    points gives errors of 1e-6 (`g`) and 6e-5 (`dg`), with 4000 points a few per cent.
+    `eps * (r_max / h)^2` in relative accuracy (in float32 a few per cent with thousands of
+    points). The radii of the contact models (`contact_radius`, `critical_radius`,
+    `front_radius`) are bracketed roots.
     """
 
     r: Array = eqx.field(converter=as_float)
@@ -308,24 +313,51 @@ class Tabulated(AbstractProfile):
                     f"r[{i + 1}] = {r[i + 1]}."
                 )
 
+    def domain(self):
+        steps = self.r[1:] - self.r[:-1]
+        return (
+            Constraint("r", self.r, "m", lo=0.0, lo_open=False, kind="length"),
+            Constraint("f", self.f, "m", lo=-np.inf),
+            Condition("`r` [m] must start at 0 and increase strictly",
+                      (self.r[0] == 0) & jnp.all(steps > 0)),
+        )
+
+    @guarded
     def shape(self, r):
         """The interpolated gap $f(r) - f(0)$ [m] (even in `r`)."""
         return _evaluate("shape", r, self.r, self.f)
 
+    @guarded
     def g(self, x):
         return _evaluate("g", x, self.r, self.f)
 
+    @guarded
     def dg(self, x):
         return _evaluate("dg", x, self.r, self.f)
 
+    @guarded
     def d2g(self, x):
         """The curvature $g''(x)$ [1/m] for $x \\ge 0$ (even in `x`); see the module docstring."""
         return _evaluate("d2g", x, self.r, self.f)
 
+    @guarded
     def integral_g(self, a):
         r"""$\int_0^a g(x)\,\mathrm{d}x$ [m²]; odd in `a`, derivative $g(a)$."""
         return _evaluate("integral_g", a, self.r, self.f)
 
     @property
+    @guarded
     def max_radius(self):
         return self.r[-1]
+
+    def contact_radius(self, depth, *, lo=None, hi=None):
+        return numerical_contact_radius(self, as_float(depth), lo, hi)
+
+    def critical_radius(self, c, k):
+        return numerical_critical_radius(self, c, k)
+
+    def front_radius(self, m, c, lo, hi=None):
+        return numerical_front_radius(self, m, c, lo, hi)
+
+    def stationary_radius(self, q, lo, hi):
+        return numerical_stationary_radius(self, q, lo, hi)

@@ -1,17 +1,54 @@
-"""Input validation shared by the physics modules.
+r"""Input validation shared by the physics modules.
 
-Checks run eagerly, with a `ValueError` that names the parameter, its unit and the allowed
-range, whenever the value is concrete. Under `jit`/`vmap` tracing the value is abstract and
-the check is skipped here; the entry functions then check at run time with
-`equinox.error_if` (see `throw=`).
+Three layers, all naming the parameter, its unit and the allowed range:
+
+- **Eager checks** (`check_positive`, `check_finite`, `check_times`, `Constraint.check`,
+  `check_plausible`): a `ValueError` as soon as a value is concrete (not a JAX tracer).
+- **Traced checks** (`Constraint.ok`, `times_ok`, `plausible`): boolean arrays computed inside
+  the compiled program, one per batch lane under `vmap`. The entry functions fold them into
+  their `.result` (`throw=False`) or raise (`throw=True`) with `equinox.error_if`.
+- **Guarded methods** (`guarded`): the methods of profiles and rheologies called under
+  `jit`/`vmap` with invalid parameters raise at run time (they have no `.result`). Inside the
+  entry functions, which report the same problems per lane, the guard is off (`unchecked`).
+
+**Plausibility of units.** All inputs are SI. Values far outside the range of their unit
+(`PLAUSIBLE`, e.g. a depth of 4000 m: nanometres given as metres) are reported as an error
+(`ValueError` eagerly, `RESULTS.implausible_input` per lane). For unusual regimes switch the
+check off with `plausibility_checks(False)` (globally, or in a `with` block); the setting is
+read when an entry function is called (or traced, under a caller's `jit`).
 """
 
 from __future__ import annotations
 
+import contextvars
+import functools
+import math
+from typing import Any, NamedTuple
+
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["check_positive", "check_finite", "check_times", "is_concrete"]
+__all__ = [
+    "PLAUSIBLE",
+    "Condition",
+    "Constraint",
+    "check_finite",
+    "check_plausible",
+    "check_domain_plausible",
+    "check_positive",
+    "check_times",
+    "domain_ok",
+    "domain_plausible",
+    "guarded",
+    "is_concrete",
+    "plausibility_checks",
+    "plausibility_enabled",
+    "plausible",
+    "times_ok",
+    "unchecked",
+]
 
 
 def is_concrete(value) -> bool:
@@ -30,6 +67,14 @@ def check_finite(name: str, value, unit: str = "") -> None:
         raise ValueError(f"`{name}` [{unit}] contains {bad} non-finite value(s) (NaN or inf).")
 
 
+def _interval(lo, hi, lo_open, hi_open) -> str:
+    left = "(" if lo_open else "["
+    right = ")" if hi_open else "]"
+    lo_s = "-inf" if lo == -math.inf else f"{lo:g}"
+    hi_s = "inf" if hi == math.inf else f"{hi:g}"
+    return f"{left}{lo_s}, {hi_s}{right}"
+
+
 def check_positive(
     name: str,
     value,
@@ -42,19 +87,8 @@ def check_positive(
 
     With `allow_zero=True` the bound is >= 0; with `upper` the value must also be < `upper`.
     """
-    if value is None or not is_concrete(value):
-        return
-    arr = np.asarray(value, dtype=float)
-    check_finite(name, arr, unit)
-    low_ok = np.all(arr >= 0) if allow_zero else np.all(arr > 0)
-    high_ok = True if upper is None else np.all(arr < upper)
-    if not (low_ok and high_ok):
-        lo = "[0" if allow_zero else "(0"
-        hi = f"{upper:g})" if upper is not None else "inf)"
-        bad = arr.ravel()[0] if arr.size == 1 else arr
-        raise ValueError(
-            f"`{name}` must lie in {lo}, {hi} [{unit}]; got {bad}."
-        )
+    hi = math.inf if upper is None else upper
+    Constraint(name, value, unit, lo=0.0, hi=hi, lo_open=not allow_zero).check()
 
 
 def check_times(ts, *, require_nonnegative: bool = False) -> None:
@@ -74,3 +108,241 @@ def check_times(ts, *, require_nonnegative: bool = False) -> None:
         )
     if require_nonnegative and arr[0] < 0:
         raise ValueError(f"`ts` [s] must be >= 0 (t = 0 is the start of the lift); got {arr[0]:g}.")
+
+
+def times_ok(ts, *, require_nonnegative: bool = False):
+    """Traced counterpart of `check_times`: all finite, non-decreasing (and `ts[0] >= 0`)."""
+    ok = jnp.all(jnp.isfinite(ts)) & jnp.all(ts[1:] >= ts[:-1])
+    if require_nonnegative:
+        ok = ok & (ts[0] >= 0)
+    return ok
+
+
+class Constraint(NamedTuple):
+    """A parameter that must be finite and lie in an interval, for eager and traced checks.
+
+    **Fields:** `name` (as the user writes it), `value` (array or scalar), `unit`, the bounds
+    `lo`, `hi` and whether they are excluded (`lo_open`, `hi_open`); `kind`: the entry of
+    `PLAUSIBLE` its plausibility is checked against (None: not checked).
+    """
+
+    name: str
+    value: Any
+    unit: str
+    lo: float = 0.0
+    hi: float = math.inf
+    lo_open: bool = True
+    hi_open: bool = True
+    kind: str | None = None
+
+    def describe(self) -> str:
+        """`` `name` must be finite and in (lo, hi) [unit]`` (no value: a static message)."""
+        return (f"`{self.name}` must be finite and in "
+                f"{_interval(self.lo, self.hi, self.lo_open, self.hi_open)} [{self.unit}]")
+
+    def ok(self):
+        """Traced: every entry finite and inside the interval (a boolean scalar array)."""
+        v = jnp.asarray(self.value)
+        low = v > self.lo if self.lo_open else v >= self.lo
+        high = v < self.hi if self.hi_open else v <= self.hi
+        return jnp.all(jnp.isfinite(v) & low & high)
+
+    def check(self) -> None:
+        """Eager: raise `ValueError` (naming the value) if a concrete value violates it."""
+        if self.value is None or not is_concrete(self.value):
+            return
+        arr = np.asarray(self.value, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            bad = int(np.sum(~np.isfinite(arr)))
+            raise ValueError(
+                f"`{self.name}` [{self.unit}] contains {bad} non-finite value(s) (NaN or inf)."
+            )
+        low = arr > self.lo if self.lo_open else arr >= self.lo
+        high = arr < self.hi if self.hi_open else arr <= self.hi
+        if not (np.all(low) and np.all(high)):
+            got = arr.ravel()[0] if arr.size == 1 else arr
+            interval = _interval(self.lo, self.hi, self.lo_open, self.hi_open)
+            raise ValueError(f"`{self.name}` must lie in {interval} [{self.unit}]; got {got}.")
+
+
+class Condition(NamedTuple):
+    """A requirement that is not an interval (e.g. a table increasing strictly), for traced
+    checks; `holds` is a boolean (array). Eagerly the owner raises its own detailed message;
+    `check` is the fallback."""
+
+    description: str
+    holds: Any
+
+    def describe(self) -> str:
+        return self.description
+
+    def ok(self):
+        return jnp.all(jnp.asarray(self.holds))
+
+    def check(self) -> None:
+        if is_concrete(self.holds) and not bool(np.all(np.asarray(self.holds))):
+            raise ValueError(self.description + ".")
+
+
+# --------------------------------------------------------------------------------------
+# guarded methods of profiles and rheologies
+# --------------------------------------------------------------------------------------
+
+_UNCHECKED = contextvars.ContextVar("jaxcontact_unchecked", default=False)
+
+
+class unchecked:  # noqa: N801 - used like a function: `with unchecked(): ...`
+    """Context in which `guarded` methods do not add their run-time check (used by the
+    entry functions while they trace: they report invalid parameters in `.result`)."""
+
+    def __enter__(self):
+        self._token = _UNCHECKED.set(True)
+        return self
+
+    def __exit__(self, *exc):
+        _UNCHECKED.reset(self._token)
+        return False
+
+
+def domain_ok(obj):
+    """Traced: every `Constraint` of `obj.domain()` holds (a boolean scalar array)."""
+    ok = jnp.asarray(True)
+    for constraint in obj.domain():
+        ok = ok & constraint.ok()
+    return ok
+
+
+def domain_plausible(obj):
+    """Traced: every `Constraint` of `obj.domain()` with a `kind` is plausible."""
+    ok = jnp.asarray(True)
+    for c in obj.domain():
+        if getattr(c, "kind", None) is not None:
+            ok = ok & plausible(c.value, c.kind)
+    return ok
+
+
+def check_domain_plausible(obj) -> None:
+    """Eager: `check_plausible` on every `Constraint` of `obj.domain()` with a `kind`."""
+    for c in obj.domain():
+        if getattr(c, "kind", None) is not None:
+            check_plausible(c.name, c.value, c.kind)
+
+
+def domain_message(obj) -> str:
+    """Static message listing the domain of `obj`'s parameters."""
+    parts = "; ".join(c.describe() for c in obj.domain())
+    return f"{type(obj).__name__}: invalid parameter: {parts}."
+
+
+def guarded(method):
+    """Decorate a method of a class with `domain()` (profiles, rheologies): when the object
+    holds traced values (under `jit`/`vmap`) the result carries a run-time check of the
+    domain (`equinox.error_if`, the message names every parameter and its range); concrete
+    objects were checked when they were built, and the entry functions switch the guard off
+    (`unchecked`) because they report the same problem in `.result`."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        if _UNCHECKED.get() or is_concrete(self):
+            return method(self, *args, **kwargs)
+        with unchecked():  # one check, on the outermost call
+            out = method(self, *args, **kwargs)
+            ok = domain_ok(self)
+        return eqx.error_if(out, jnp.logical_not(ok), domain_message(self))
+
+    return wrapper
+
+
+# --------------------------------------------------------------------------------------
+# plausibility of units
+# --------------------------------------------------------------------------------------
+
+#: Plausible ranges of the inputs by kind, `(low, high, unit)`: a value outside is most
+#: likely given in other units (all inputs are SI). Lengths include depths, radii and
+#: displacement amplitudes; moduli all shear moduli; times relaxation times and sample
+#: times.
+PLAUSIBLE: dict[str, tuple[float, float, str]] = {
+    "length": (1e-12, 1.0, "m"),
+    "modulus": (1e-3, 1e13, "Pa"),
+    "viscosity": (1e-6, 1e25, "Pa s"),
+    "time": (1e-12, 1e12, "s"),
+    "work_of_adhesion": (1e-12, 10.0, "J/m^2"),
+    "velocity": (1e-15, 1e3, "m/s"),
+    "stiffness": (1e-6, 1e12, "N/m"),
+}
+
+_PLAUSIBILITY_GLOBAL = [True]  # a process-wide switch (the command line works in a thread)
+
+
+class plausibility_checks:  # noqa: N801 - used like a function
+    """Switch the plausibility checks of units on or off.
+
+    `jaxcontact.plausibility_checks(False)` switches them off for the rest of the session;
+    `with jaxcontact.plausibility_checks(False): ...` only inside the block. The checks
+    compare every input of the entry functions (`retract`, `simulate`, `pull_off`, the
+    elastic relations) with `PLAUSIBLE` (lengths 1e-12–1 m, moduli 1e-3–1e13 Pa,
+    viscosities 1e-6–1e25 Pa s, times 1e-12–1e12 s, Δγ 1e-12–10 J/m², speeds
+    1e-15–1e3 m/s, spring stiffnesses 1e-6–1e12 N/m; zero never counts as implausible) and
+    report a value outside as an error (most likely a unit mistake: e.g. nanometres given
+    as metres). The setting is read when an entry function runs (or is traced under a
+    caller's `jit`: a compiled program keeps the setting it was traced with).
+    """
+
+    def __init__(self, enabled: bool):
+        self._previous = _PLAUSIBILITY_GLOBAL[0]
+        _PLAUSIBILITY_GLOBAL[0] = bool(enabled)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        _PLAUSIBILITY_GLOBAL[0] = self._previous
+        return False
+
+
+def plausibility_enabled() -> bool:
+    """Whether the plausibility checks of units are on (see `plausibility_checks`)."""
+    return _PLAUSIBILITY_GLOBAL[0]
+
+
+def _plausible_message(name, kind) -> str:
+    lo, hi, unit = PLAUSIBLE[kind]
+    return (f"`{name}` lies outside the plausible range [{lo:g}, {hi:g}] {unit} of a "
+            f"{kind.replace('_', ' ')}")
+
+
+def check_plausible(name: str, value, kind: str, *, magnitude: bool = False) -> None:
+    """Eager: raise `ValueError` if a concrete `value` lies outside `PLAUSIBLE[kind]` (with
+    `magnitude`, only its largest absolute value is checked; zeros and non-finite values
+    pass, the latter being the domain checks' business). No-op when the checks are off."""
+    if not plausibility_enabled() or value is None or not is_concrete(value):
+        return
+    arr = np.abs(np.asarray(value, dtype=float)).ravel()
+    arr = arr[np.isfinite(arr) & (arr != 0)]
+    if arr.size == 0:
+        return
+    lo, hi, unit = PLAUSIBLE[kind]
+    if magnitude:
+        bad = arr.max() > hi
+        got = arr.max()
+    else:
+        bad = not (np.all(arr >= lo) and np.all(arr <= hi))
+        got = arr.ravel()[np.argmax((arr < lo) | (arr > hi))] if bad else None
+    if bad:
+        raise ValueError(
+            f"{_plausible_message(name, kind)} (got {got:g} {unit}): is it in other units? "
+            "All inputs are SI. If the value is right, switch the check off with "
+            "`jaxcontact.plausibility_checks(False)`."
+        )
+
+
+def plausible(value, kind: str, *, magnitude: bool = False):
+    """Traced: `value` (every entry; with `magnitude` its largest absolute value) lies in
+    `PLAUSIBLE[kind]`; zeros and non-finite entries pass (the latter are left to the domain
+    checks)."""
+    lo, hi, _ = PLAUSIBLE[kind]
+    v = jnp.abs(jnp.asarray(value))
+    skip = jnp.logical_not(jnp.isfinite(v)) | (v == 0)
+    if magnitude:
+        return jnp.all(skip | (v <= hi))
+    return jnp.all(skip | ((v >= lo) & (v <= hi)))

@@ -30,6 +30,10 @@ def add_parser(sub, common) -> None:
     p.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")
     p.add_argument("--out", type=Path, required=True, help="output CSV file")
     p.add_argument("--json", action="store_true", help="print the events as JSON on stdout")
+    p.add_argument(
+        "--no-plausibility-check", dest="plausibility_check", action="store_false",
+        help="accept values far outside the usual range of their unit (e.g. a 1 km radius)",
+    )
     p.set_defaults(func=run)
 
 
@@ -60,6 +64,29 @@ def add_material_arguments(p) -> None:
 _UNITS = {"G0": "Pa", "G1": "Pa", "eta1": "Pa s", "work_of_adhesion": "J/m^2", "radius": "m",
           "depth": "m", "velocity": "m/s", "duration": "s", "approach_velocity": "m/s",
           "stiffness": "N/m"}
+# the library's plausible range of each option's unit (`jaxcontact.PLAUSIBLE`)
+_KINDS = {"G0": "modulus", "G1": "modulus", "eta1": "viscosity",
+          "work_of_adhesion": "work_of_adhesion", "radius": "length", "depth": "length",
+          "velocity": "velocity", "duration": "time", "hold": "time",
+          "approach_velocity": "velocity", "stiffness": "stiffness"}
+
+
+def _check_plausible(args) -> None:
+    import jaxcontact as jc
+
+    if not getattr(args, "plausibility_check", True):
+        return
+    for name, kind in _KINDS.items():
+        value = getattr(args, name, None)
+        if value is None or value == 0:
+            continue
+        lo, hi, unit = jc.PLAUSIBLE[kind]
+        if not lo <= value <= hi:
+            raise UsageError(
+                f"argument --{name.replace('_', '-')}: {value:g} {unit} lies outside the "
+                f"plausible range [{lo:g}, {hi:g}] {unit} (all values are SI: a unit "
+                "mistake?); --no-plausibility-check accepts it"
+            )
 
 
 def check_args(args) -> None:
@@ -79,6 +106,7 @@ def check_args(args) -> None:
             "argument --radius/--depth: values above 1 m / 1 cm look like a unit mistake "
             "(all lengths are in metres, e.g. 5e-6 for 5 µm)"
         )
+    _check_plausible(args)
     if args.stiffness is not None and args.hold is None:
         raise UsageError("argument --stiffness: needs --hold (the full-history model)")
     if args.approach_velocity is not None and args.hold is None:
@@ -147,7 +175,8 @@ def run(args) -> int:
     out = check_output_file("--out", args.out)
     print(f"jaxcontact {jc.__version__}: simulating {args.samples} samples ...",
           file=sys.stderr, flush=True)
-    sol = simulate(args)
+    with jc.plausibility_checks(getattr(args, "plausibility_check", True)):
+        sol = simulate(args)
     if not (bool(sol.result == jc.RESULTS.in_contact) or bool(sol.result == jc.RESULTS.detached)):
         msg = sol.result._enumeration[sol.result]
         print(f"jaxcontact simulate: error: the simulation failed: {msg}", file=sys.stderr)

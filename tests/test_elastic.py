@@ -186,7 +186,7 @@ def test_bad_inputs():
 def test_reciprocal_cube_root_against_numpy(dtype, ulps):
     # the multiply-only y^(-1/3) behind the parabola's front root, over the whole range of
     # normal numbers whose cube stays representable
-    from jaxcontact._elastic import _rcbrt_positive
+    from jaxcontact._profiles import _rcbrt_positive
 
     lim = 90 if dtype == np.float32 else 300
     rng = np.random.default_rng(3)
@@ -203,7 +203,7 @@ def test_parabola_front_root_solves_the_quartic(dtype):
     # a^2/R - c sqrt(a) = m on the stable branch, from the fold to deep compression (weak
     # adhesion: a / a_fold up to 1e9, where Cardano's u + v cancels if written naively and
     # mu^3 overflows float32)
-    from jaxcontact._elastic import _parabola_stable_radius
+    from jaxcontact._profiles import _parabola_stable_radius
 
     R, c = 1e-4, 3e-5
     a_fold = (c * R / 4) ** (2 / 3)

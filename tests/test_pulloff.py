@@ -218,7 +218,7 @@ def test_jumpoff_time_refined_between_samples():
     at = run(ts=jnp.array([tj]))
     E, dge = 4 * GINF, DG * (G0 + G1) / G1
     po = jc.pull_off(jc.Parabola(R=R), effective_modulus=E, work_of_adhesion=dge)
-    np.testing.assert_allclose(at.stats["effective_displacement"][0], po.displacement, rtol=1e-10)
+    np.testing.assert_allclose(at.details.effective_displacement[0], po.displacement, rtol=1e-10)
 
 
 def test_after_jumpoff_exactly_zero_and_no_detachment_reported():
@@ -314,7 +314,7 @@ def test_advancing_history_is_an_error():
 )
 def test_bad_inputs(kw, name):
     if name is None:
-        with pytest.raises(AttributeError):
+        with pytest.raises(TypeError, match="rheology"):
             run(**kw)
         return
     with pytest.raises(ValueError, match=name):
@@ -348,7 +348,7 @@ def test_sampled_arm_states_against_sequential_recurrence():
     # JAX's own derivatives: values, parameter tangents (the fitting Jacobian's path) and
     # tangents of the sampling itself (times and displacements), for relaxation times from
     # far below to far above the sampling interval (x = dt/tau from 1e-4 to 30)
-    from jaxcontact._pulloff import _states_samples
+    from jaxcontact._arms import states_samples as _states_samples
 
     rng = np.random.default_rng(3)
     n = 97

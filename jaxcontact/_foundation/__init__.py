@@ -18,9 +18,10 @@ $$q = 4\Big[G_\infty u + \sum_k G_k (u - v_k)\Big] = 4\Big[G_g u - \sum_k G_k v_
   that is linear in time over a step $\Delta$ the update is exact:
   $v_k \leftarrow v_k e^{-\Delta/\tau_k} + u_0(1 - e^{-\Delta/\tau_k})
   + \Delta u\,\psi(\Delta/\tau_k)$, $\psi(s) = 1 - (1 - e^{-s})/s$.
-- *Free* springs ($|x| > a$) carry no load, $q = 0$, so $u = \sum_m \rho_m v_m$ with
-  $\rho_m = G_m/G_g$ and $\dot v = A v$, $A_{km} = (\rho_m - \delta_{km})/\tau_k$; exact update
-  $v \leftarrow e^{A\Delta} v$. A free spring recovers towards $u = 0$ with the retardation
+- *Free* springs ($|x| > a$) carry no load, $q = 0$, so $u = \sum_m r_m v_m$ with the arm
+  ratios $r_m = G_m/G_g$ (`arm_ratio`) and $\dot v = A v$,
+  $A_{km} = (r_m - \delta_{km})/\tau_k$; exact update $v \leftarrow e^{A\Delta} v$. A free
+  spring recovers towards $u = 0$ with the retardation
   times of the material.
 
 **Touch and re-attachment (cycles).** The contact is the disc $|x| < a(t)$ (the MDR
@@ -64,8 +65,8 @@ the minimiser ($\mathrm{d}F/\mathrm{d}d = -k$ along the front; the criterion's f
 stiff spring, force control's minimum of $F$ for $k \to 0$). Exact for an elastic solid
 at any $k$ and any sampling; for a viscoelastic one the jump-off converges at first order
 in the sample spacing (the indentation accelerates towards the instability, while a step
-takes it linear in time): in the benchmark's approach-hold-lift with $k$ = 2 N/m and 600
-samples, 1.2e-3 relaxation times (0.14 of a sample interval) and 6e-4 of the force.
+takes it linear in time; measured by `benchmarks/bench_foundation.py`, results in
+`benchmarks/results-forward.md`).
 
 **Discretisation.** Springs sit at nodes $x_j$ uniform in the touch depth: $g(x_j) = j\,
 g_\max/n$ (for the parabola $x_j \propto \sqrt j$, densest at the edge): springs of one cell
@@ -80,12 +81,10 @@ exactly. The force is $F = 2\int_0^a q\,dx = 8\big[G_g a d - G_\infty\int_0^a g
 - \sum_k G_k\int_0^a s_k\big]$, integrated exactly over the interpolant (partial last cell
 included). The discretisation errors are the interpolation of $s$ between springs of
 different histories, second order in the cell size, and the timing of springs that change
-state inside a step (located by linear interpolation in time; exact for virgin springs). For
-the approach-hold-lift of the standard model in `benchmarks/bench_foundation.py` (5,000
-samples, against 1,024 cells) the default 64 cells give a largest force error of 2.5e-5 of
-the peak force (2.1e-4 with 32 cells, 4.9e-4 with 16); over approach and hold alone 1.9e-5
-(7.6e-5, 3.2e-4), observed order 2.0; the jump-off time to 5e-6 relaxation times (order
-2). `estimate_error=True` reports 6e-5 for the force there (it overestimates).
+state inside a step (located by linear interpolation in time; exact for virgin springs).
+The error against the number of cells, and the estimate of `estimate_error=True` (which
+overestimates it), are measured by `benchmarks/bench_foundation.py` (results in
+`benchmarks/results-forward.md`).
 
 **Time integration.** `ExactUpdate()` (default) uses the closed-form updates above for the
 piecewise-linear input: no time-step error. `DiffraxODE(...)` integrates the dashpot ODEs of
@@ -104,3 +103,4 @@ from ._loading import DisplacementControl as DisplacementControl
 from ._options import DEFAULT_CELLS as DEFAULT_CELLS
 from ._options import FoundationGrid as FoundationGrid
 from ._simulate import simulate as simulate
+from ._state import FoundationState as FoundationState

@@ -7,20 +7,22 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from .._arms import attached_update, psi
 from .._root import bracketed_root
 from .._solvers import (
     golden_section,
+    implicit_extremum,
+    newton_iterate,
     quadratic_at,
     quadratic_newton_form,
     safe_div,
 )
 from ._model import _ModelCore
-from ._updates import _attached_update, _psi
+from ._state import JumpOff
 
 
 class _Model(_ModelCore):
     """The foundation model with the in-step refinements of its events."""
-
 
     def refine_jumpoff(self, pre):
         r"""Solve $\max_x R(x, t) = 0$ inside the jump-off step (exact in-step evolution).
@@ -33,12 +35,12 @@ class _Model(_ModelCore):
         Returns (time, displacement, radius, force, valid); `valid` is False when the step
         does not bracket the fold.
         """
-        V, vf, a, t0, t1, d0, d1 = pre.unpack()
-        dt, dd = t1 - t0, d1 - d0
+        V, vf, a, t0, d0, d1 = pre.nodes, pre.edge_spring, pre.radius, pre.t0, pre.d0, pre.d1
+        dt, dd = pre.t1 - t0, d1 - d0
         ga = self.geo.g(a)
         # the cell of the maximum at the end of the step (no derivative needed for the choice)
-        V1 = _attached_update(V, d0 - self.gx, dd, dt, self.tau)
-        vf1 = _attached_update(vf, d0 - ga, dd, dt, self.tau)
+        V1 = attached_update(V, d0 - self.gx, dd, dt, self.tau)
+        vf1 = attached_update(vf, d0 - ga, dd, dt, self.tau)
         cells1 = self.attached_cells(V1, vf1, a, d1)
         cell = lax.stop_gradient(self.max_criterion(cells1, a)[2])
         cells0 = self.attached_cells(V, vf, a, d0)
@@ -49,7 +51,7 @@ class _Model(_ModelCore):
         def coefficients(theta):
             s = jnp.asarray(theta * dt) / self.tau
             e = jnp.exp(-s)
-            b = -d0 * jnp.expm1(-s) + theta * dd * _psi(s)
+            b = -d0 * jnp.expm1(-s) + theta * dd * psi(s)
             Gs = jnp.sum(self.Gk * (s_lo0 * e + b))
             Gm = jnp.sum(self.Gk * slope0 * e)
             alpha = 4.0 * (self.Gg * (d0 + theta * dd) - Gs + Gm * z_lo)
@@ -74,20 +76,17 @@ class _Model(_ModelCore):
         # one Newton step on R'(x) = 0 at the converged maximiser: same value, and the exact
         # implicit derivative dx/dp = -R'_p / R'' when the maximum is interior to the cell
         dR = jax.grad(lambda xx: self.cell_R(xx, alpha, beta))
-        d2R = jax.grad(dR)
-        curv = d2R(x_max)
-        good = (x_max > lo) & (x_max < hi) & (curv < 0)
-        x_cell = jnp.where(good, x_max - dR(x_max) / jnp.where(good, curv, -1.0), x_max)
+        x_cell = implicit_extremum(dR, x_max, lo, hi, maximum=True)
         d = d0 + theta * dd
-        Va = _attached_update(V, d0 - self.gx, theta * dd, theta * dt, self.tau)
-        vfa = _attached_update(vf, d0 - ga, theta * dd, theta * dt, self.tau)
+        Va = attached_update(V, d0 - self.gx, theta * dd, theta * dt, self.tau)
+        vfa = attached_update(vf, d0 - ga, theta * dd, theta * dt, self.tau)
         cells = self.attached_cells(Va, vfa, a, d)
         x_fold = self._fold_radius(cells, a, d, x_cell)
         n_last = jnp.maximum(jnp.sum(cells.valid) - 1, 0)
         c = jnp.clip(jnp.searchsorted(self.x, x_fold, side="right") - 1, 0, n_last)
         s_edge = cells.s_lo[c] + cells.slope[c] * (self.geo.zeta(x_fold) - cells.z_lo[c])
         F = self.force(Va, s_edge - self.geo.g(x_fold), x_fold, d)
-        return t0 + theta * dt, d, x_fold, F, valid
+        return JumpOff(time=t0 + theta * dt, displacement=d, radius=x_fold, force=F, valid=valid)
 
     def _fold_radius(self, cells, a, d, fallback):
         r"""Second-order maximiser of the criterion near the fold.
@@ -123,21 +122,10 @@ class _Model(_ModelCore):
             return 4.0 * (self.Gg * d - self.Gi_g * z - S) + self.c * self.sqrt(x)
 
         dR = jax.grad(R)
-        d2R = jax.grad(dR)
         lo, hi = lax.stop_gradient(x0), lax.stop_gradient(x2)
-
-        def newton(_, x):
-            step = dR(x) / d2R(x)
-            x_new = x - jnp.where(jnp.isfinite(step), step, 0.0)
-            return jnp.clip(x_new, lo, hi)
-
-        x_start = lax.stop_gradient(jnp.clip(fallback, x0, x2))
-        xs = lax.fori_loop(0, 12, newton, x_start)
-        curv = d2R(xs)
-        ok = ok & (curv < 0) & (xs > lo) & (xs < hi) & jnp.isfinite(curv)
+        xs = newton_iterate(dR, fallback, lo, hi, steps=12)
         # one Newton step with derivatives: the implicit derivative of the maximiser
-        x_fold = xs - dR(xs) / jnp.where(ok, curv, -1.0)
-        return jnp.where(ok, x_fold, fallback)
+        return implicit_extremum(dR, xs, lo, hi, maximum=True, ok=ok, fallback=fallback)
 
     def front_field(self, V, vf, a0, d0):
         r"""The attached field of a contact of radius `a0` as a function of the position.
@@ -193,13 +181,13 @@ class _Model(_ModelCore):
         Returns (time, displacement, radius, force, valid); `valid` is False when the step
         does not bracket the instability.
         """
-        V, vf, a, t0, t1, d0, _ = pre.unpack()
-        dt = t1 - t0
+        V, vf, a, t0, d0 = pre.nodes, pre.edge_spring, pre.radius, pre.t0, pre.d0
+        dt = pre.t1 - t0
         field, cells = self.front_field(V, vf, a, d0)
 
         def equilibrium(x, theta):
             sc = jnp.asarray(theta * dt) / self.tau
-            e, m1, ps = jnp.exp(-sc), jnp.expm1(-sc), _psi(sc)
+            e, m1, ps = jnp.exp(-sc), jnp.expm1(-sc), psi(sc)
             s_x, J = field(x)
             P = jnp.sum(self.Gk * ps)
             # R = 4 (G_g d - G_inf g - sum G_k s_k) + c sqrt(x) = 0, solved for d
@@ -224,15 +212,8 @@ class _Model(_ModelCore):
             # golden section resolves a smooth minimum to ~sqrt(eps) only: polish by Newton
             # steps, kept where they are as small as that (not across a kink of the
             # interpolant, where the minimum is the kink itself)
-            dz = jax.grad(z_eq)
-            d2z = jax.grad(dz)
-
-            def polish(_, x):
-                step = dz(x, theta) / d2z(x, theta)
-                small = jnp.isfinite(step) & (jnp.abs(step) < 1e-6 * a_sg)
-                return jnp.clip(jnp.where(small, x - step, x), 0.0, a_sg)
-
-            mid = lax.fori_loop(0, 3, polish, mid)
+            dz = jax.grad(lambda x: z_eq(x, theta))
+            mid = newton_iterate(dz, mid, zero, a_sg, steps=3, max_step=1e-6 * a_sg)
             # the minimum at the edge itself (a pinned edge unstable as it starts to recede)
             return jnp.where(a_sg - mid < 1e-9 * a_sg, a_sg, mid)
 
@@ -250,17 +231,13 @@ class _Model(_ModelCore):
         theta = bracketed_root(H, 0.0, 1.0, steps=48)
         x = at_min(theta)
         interior = lax.stop_gradient(x) < a_sg
-        dz = jax.grad(z_eq)
-        d2z = jax.grad(dz)
-        curv = d2z(x, theta)
-        good = interior & (curv > 0) & jnp.isfinite(curv)
         # the implicit derivative of the minimiser, dx/dp = -(d z'/dp) / z'' (a Newton step
         # on z' = 0 that only enters the derivative: the value stays the converged one)
-        slope = dz(x, theta)
-        x = jnp.where(good, x - (slope - lax.stop_gradient(slope)) / jnp.where(good, curv, 1.0), x)
+        dz = jax.grad(lambda xx: z_eq(xx, theta))
+        x = implicit_extremum(dz, x, -jnp.inf, a_sg, maximum=False, keep_value=True)
         x = jnp.where(interior, self._instability_radius(cells, a, d0, dt, theta, k, x), x)
         d, F = equilibrium(x, theta)
-        return t0 + theta * dt, d, x, F, valid
+        return JumpOff(time=t0 + theta * dt, displacement=d, radius=x, force=F, valid=valid)
 
     def _instability_radius(self, cells, a, d0, dt, theta, k, fallback):
         r"""Second-order location of an interior minimum of $z_\mathrm{eq}(x, \theta)$.
@@ -274,7 +251,7 @@ class _Model(_ModelCore):
         `fallback` where those springs are not available.
         """
         sc = jnp.asarray(theta * dt) / self.tau
-        e, m1, ps = jnp.exp(-sc), jnp.expm1(-sc), _psi(sc)
+        e, m1, ps = jnp.exp(-sc), jnp.expm1(-sc), psi(sc)
         P = jnp.sum(self.Gk * ps)
         B0 = -d0 * jnp.sum(self.Gk * m1)
         den = self.Gg - P
@@ -312,20 +289,11 @@ class _Model(_ModelCore):
             Fp = 8.0 * (Fp - (dR - d0) * P - x * P * dRp)
             return dRp + Fp / k
 
-        curvature = jax.grad(slope)
         lo = lax.stop_gradient(self.x[j0])
         hi = lax.stop_gradient(jnp.where(short, self.x[c], x_up))
-
-        def newton(_, x):
-            step = slope(x) / curvature(x)
-            return jnp.clip(x - jnp.where(jnp.isfinite(step), step, 0.0), lo, hi)
-
-        xq = lax.stop_gradient(lax.fori_loop(0, 8, newton, jnp.clip(xs, lo, hi)))
-        curv = curvature(xq)
-        ok = ok & (curv > 0) & jnp.isfinite(curv) & (xq > lo) & (xq < hi)
+        xq = newton_iterate(slope, xs, lo, hi, steps=8)
         # one Newton step with derivatives: the implicit derivative of the minimiser
-        x = xq - slope(xq) / jnp.where(ok, curv, 1.0)
-        return jnp.where(ok, x, fallback)
+        return implicit_extremum(slope, xq, lo, hi, maximum=False, ok=ok, fallback=fallback)
 
     def front_minimum(self, pre, a_end):
         r"""Smallest force along a receding front inside one step (dense output).
@@ -339,15 +307,15 @@ class _Model(_ModelCore):
         `pre`: the `StepStart` of the step (its `radius` is the radius at the start).
         Returns `inf` if the front does not recede.
         """
-        V, vf, a0, t0, t1, d0, d1 = pre.unpack()
-        dt, dd = t1 - t0, d1 - d0
+        V, vf, a0, d0, d1 = pre.nodes, pre.edge_spring, pre.radius, pre.d0, pre.d1
+        dt, dd = pre.t1 - pre.t0, d1 - d0
         recedes = (a_end < a0) & (a_end > 0)
         a_end = jnp.where(recedes, a_end, 0.5 * a0)
         field, _ = self.front_field(V, vf, a0, d0)
 
         def e_b(theta):
             sc = jnp.asarray(theta * dt) / self.tau
-            return jnp.exp(-sc), -d0 * jnp.expm1(-sc) + theta * dd * _psi(sc)
+            return jnp.exp(-sc), -d0 * jnp.expm1(-sc) + theta * dd * psi(sc)
 
         e1, b1 = e_b(1.0)
 

@@ -8,13 +8,12 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jax import lax
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, Float
 
-from .._elastic import profile_radius
-from .._root import bracketed_root
-from .._solvers import quadratic_at, quadratic_newton_form, quadratic_vertex, safe_div
-from .._validate import check_positive
+from .._root import bracketed_root, newton_root
+from .._solvers import as_float, quadratic_at, quadratic_newton_form, quadratic_vertex, safe_div
+from .._validate import Constraint
+from ._state import JumpOff
 
 
 class AbstractLoading(eqx.Module):
@@ -22,14 +21,19 @@ class AbstractLoading(eqx.Module):
 
     A loading system turns the sampled input into the indentation at every sample
     (`step`), bounds the indentation the grid must cover (`grid_depth`), refines the
-    jump-off inside its step (`refine_jumpoff`) and names its own statistics (`stats`).
-    Subclasses implement all four; `simulate` calls them and never asks for the type.
+    jump-off inside its step (`refine_jumpoff`) and states the domain of its parameters
+    (`domain`). Subclasses implement all of them; `simulate` calls them and never asks for
+    the type.
     """
 
     @abc.abstractmethod
-    def grid_depth(self, rheology, profile, drive_max, flat: bool):
+    def domain(self) -> tuple[Constraint, ...]:
+        """The parameters and their allowed ranges (checked eagerly and per lane)."""
+
+    @abc.abstractmethod
+    def grid_depth(self, rheology, profile, drive_max):
         """Largest indentation [m] reached for inputs up to `drive_max` [m] (before the
-        grid's margin of one cell); `flat`: the profile is a flat punch."""
+        grid's margin of one cell)."""
 
     @abc.abstractmethod
     def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
@@ -39,22 +43,21 @@ class AbstractLoading(eqx.Module):
         [m]. Returns `(new_state, out, stiffness)` with `out` a `StepOutput`."""
 
     @abc.abstractmethod
-    def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force):
-        """The first jump-off `(time, displacement, radius, force)` refined for this loading
-        system. `jumpoff`: that tuple and `refined` (the root under displacement control
-        bracketed the fold), from `model.refine_jumpoff(pre)`; `pre`: the `StepStart` of
-        the jump-off step (a stand-in where `safe` is False); `i_j`: its sample index;
-        `ts`, `u`, `d`, `radius`, `force`: the sampled history."""
-
-    @abc.abstractmethod
-    def stats(self, newton_failed) -> dict:
-        """Statistics of this loading system for `ContactSolution.stats`."""
+    def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force) -> JumpOff:
+        """The first jump-off refined for this loading system. `jumpoff`: the `JumpOff`
+        from `model.refine_jumpoff(pre)` (`valid`: the root under displacement control
+        bracketed the fold); `pre`: the `StepStart` of the jump-off step (a stand-in where
+        `safe` is False); `i_j`: its sample index; `ts`, `u`, `d`, `radius`, `force`: the
+        sampled history."""
 
 
 class DisplacementControl(AbstractLoading):
     r"""Rigid loading (default): the input is the indentation $d(t)$ [m] itself."""
 
-    def grid_depth(self, rheology, profile, drive_max, flat: bool):
+    def domain(self):
+        return ()
+
+    def grid_depth(self, rheology, profile, drive_max):
         return drive_max
 
     def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
@@ -62,10 +65,7 @@ class DisplacementControl(AbstractLoading):
         return new_state, out, stiffness
 
     def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force):
-        return jumpoff[:4]
-
-    def stats(self, newton_failed) -> dict:
-        return {}
+        return jumpoff
 
 
 class CompliantLoading(AbstractLoading):
@@ -89,47 +89,43 @@ class CompliantLoading(AbstractLoading):
     - `newton_steps`: Newton iterations per sample (static, default 12).
     """
 
-    stiffness: Float[ArrayLike, ""]
+    stiffness: Float[Array, ""] = eqx.field(converter=as_float)
     newton_steps: int = eqx.field(static=True, default=12)
 
     def __check_init__(self):
-        check_positive("stiffness", self.stiffness, "N/m")
+        for constraint in self.domain():
+            constraint.check()
 
-    def grid_depth(self, rheology, profile, drive_max, flat: bool):
-        if flat:
+    def domain(self):
+        return (Constraint("stiffness", self.stiffness, "N/m", kind="stiffness"),)
+
+    def grid_depth(self, rheology, profile, drive_max):
+        if profile.touch_coordinate().covers_contact:
             return drive_max
         # rounded up to 1/8 of an octave, so that the grid does not move with small
         # changes of the parameters (pass `depth` to fix it for a fit)
         bound = _compliant_depth(rheology, profile, self.stiffness, drive_max)
-        bound = jnp.exp2(jnp.ceil(8.0 * jnp.log2(jnp.maximum(bound, 1e-300))) / 8.0)
+        tiny = jnp.finfo(jnp.result_type(bound)).tiny
+        bound = jnp.exp2(jnp.ceil(8.0 * jnp.log2(jnp.maximum(bound, tiny))) / 8.0)
         return jnp.where(drive_max > 0, jnp.minimum(bound, drive_max), drive_max)
 
     def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
         # k (d1 - z1) + F(d1) = 0 by Newton's method (derivatives by the implicit function
         # theorem); where it does not converge in contact the contact is taken as lost
-        k = jnp.asarray(self.stiffness, dtype=model.Gi.dtype)
+        k = self.stiffness
         d0 = state.depth
 
         def f(d1):
             return k * (d1 - z1) + model.step(state, t0, t1, d1, P)[1].force
 
-        def newton(fn, guess):
-            def body(_, x):
-                fx, dfx = jax.jvp(fn, (x,), (jnp.ones_like(x),))
-                dfx = jnp.where(dfx > 0.05 * k, dfx, k)
-                return x - fx / dfx
-
-            return lax.fori_loop(0, self.newton_steps, body, lax.stop_gradient(guess))
-
-        def tangent_solve(g, y):
-            slope = g(jnp.ones_like(y))
-            return y / jnp.where(jnp.abs(slope) > 1e-3 * k, slope, k)
-
         guess = d0 + (z1 - z0) * k / (k + jnp.maximum(stiffness, 0.0))
-        d1 = lax.custom_root(f, guess, newton, tangent_solve)
+        d1 = newton_root(f, guess, steps=self.newton_steps, slope_floor=0.05 * k,
+                         fallback_slope=k, tangent_floor=1e-3 * k)
         f1, df1 = jax.jvp(f, (d1,), (jnp.ones_like(d1),))
         scale = k * (jnp.abs(z1) + depth) + jnp.abs(f1 - k * (d1 - z1))
-        converged = (jnp.abs(f1) <= 1e-8 * scale) & (df1 > 0)
+        # converged to the round-off of the residual (1e-8 in float64, 64 eps in float32)
+        rtol = max(1e-8, 64 * float(jnp.finfo(scale.dtype).eps))
+        converged = (jnp.abs(f1) <= rtol * scale) & (df1 > 0)
         lost = jnp.logical_not(converged) & (state.radius > 0)
         d1 = jnp.where(lost, z1, d1)
         new_state, out = model.step(state, t0, t1, d1, P, force_detach=lost)
@@ -144,8 +140,11 @@ class CompliantLoading(AbstractLoading):
         # (`refine_instability`). Where the step does not bracket it (the contact was lost
         # by a failure of Newton's method elsewhere), fit parabolas z(a), F(a) through the
         # last three samples in contact and take the vertex.
-        j_time, j_disp, j_rad, j_force, refined = jumpoff
-        k = jnp.asarray(self.stiffness, dtype=model.Gi.dtype)
+        j_time, j_disp, j_rad, j_force = (
+            jumpoff.time, jumpoff.displacement, jumpoff.radius, jumpoff.force
+        )
+        refined = jumpoff.valid
+        k = self.stiffness
         i_prev = jnp.maximum(i_j - 1, 0)
         inst = model.refine_instability(pre, u[i_prev], u[i_j], k)
         idx = jnp.maximum(i_j - jnp.arange(3, 0, -1), 0)  # i_j-3, i_j-2, i_j-1
@@ -180,14 +179,14 @@ class CompliantLoading(AbstractLoading):
         j_rad = jnp.where(use_v, a_v, j_rad)
         j_force = jnp.where(use_v, jnp.where(ok_c, f_v, force[idx[2]]), j_force)
         j_disp = jnp.where(use_v, jnp.where(ok_c, z_v - f_v / k, d[idx[2]]), j_disp)
-        use_i = inst[4] & safe & (i_j >= 1)
-        return tuple(
-            jnp.where(use_i, new, old)
-            for new, old in zip(inst[:4], (j_time, j_disp, j_rad, j_force), strict=True)
+        use_i = inst.valid & safe & (i_j >= 1)
+        return JumpOff(
+            time=jnp.where(use_i, inst.time, j_time),
+            displacement=jnp.where(use_i, inst.displacement, j_disp),
+            radius=jnp.where(use_i, inst.radius, j_rad),
+            force=jnp.where(use_i, inst.force, j_force),
+            valid=refined | use_v | use_i,
         )
-
-    def stats(self, newton_failed) -> dict:
-        return dict(newton_failures=jnp.sum(newton_failed))
 
 
 def _compliant_depth(rheology, profile, stiffness, z_max):
@@ -197,11 +196,11 @@ def _compliant_depth(rheology, profile, stiffness, z_max):
     $F \ge F_\infty(d) = 8G_\infty(a d - \int_0^a g)$ with $g(a) = d$, so the indentation
     never exceeds the root of $d + F_\infty(d)/k = z_\max$.
     """
-    G_inf = jnp.asarray(rheology.to_prony().G_inf, dtype=float)
-    k = jnp.asarray(stiffness, dtype=float)
+    G_inf = rheology.to_prony().G_inf
+    k = stiffness
 
     def resid(d):
-        a = profile_radius(profile, d)
+        a = profile.contact_radius(d)
         return d + 8.0 * G_inf * (a * d - profile.integral_g(a)) / k - z_max
 
     root = bracketed_root(resid, 0.0 * z_max, z_max, steps=80)

@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import diffrax
 import jax.numpy as jnp
 from jax import lax
 
-from .._pulloff import DiffraxODE
-from .._solvers import (
-    safe_div,
-)
-from ._geometry import _Geometry
-from ._state import Cells, FoundationState, StepOutput
-from ._updates import _attached_update, _concave_root
+from .._arms import attached_update
+from .._root import concave_root
+from .._solvers import safe_div
+from ._state import Cells, FoundationState, StepBranch, StepOutput
 
 _ROOT_STEPS = 16
 
@@ -22,9 +18,9 @@ class _ModelCore:
 
     def __init__(self, rheology, profile, work_of_adhesion, x_nodes, method):
         prony = rheology.to_prony()
-        Gi = jnp.asarray(prony.G_inf, dtype=float)
-        Gk = jnp.atleast_1d(jnp.asarray(prony.G, dtype=float))
-        tau = jnp.atleast_1d(jnp.asarray(prony.tau, dtype=float))
+        Gi = prony.G_inf
+        Gk = jnp.atleast_1d(prony.G)
+        tau = jnp.atleast_1d(prony.tau)
         if Gk.shape[0] == 0:  # elastic: one inert arm keeps the shapes non-empty
             Gk = jnp.zeros((1,), dtype=Gi.dtype)
             tau = jnp.ones((1,), dtype=Gi.dtype)
@@ -32,10 +28,10 @@ class _ModelCore:
         self.Gg = Gi + jnp.sum(Gk)
         self.arm_ratio = Gk / self.Gg
         self.A = (self.arm_ratio[None, :] - jnp.eye(Gk.shape[0], dtype=Gi.dtype)) / tau[:, None]
-        self.c = jnp.sqrt(8.0 * jnp.pi * jnp.asarray(work_of_adhesion, dtype=float) * self.Gg)
-        self.geo = _Geometry(profile)
+        self.c = jnp.sqrt(8.0 * jnp.pi * work_of_adhesion * self.Gg)
+        self.geo = profile.touch_coordinate()
         # the elastic part of beta: 4 G_inf g(x) (absent for the flat punch, where g = 0)
-        self.Gi_g = jnp.zeros_like(Gi) if self.geo.flat else Gi
+        self.Gi_g = Gi * self.geo.g_weight
         self.x = x_nodes
         self.n_nodes = x_nodes.shape[0]
         self.L = x_nodes[-1]
@@ -52,9 +48,10 @@ class _ModelCore:
     def free_propagator(self, h):
         r"""$e^{A h}$ for the load-free springs, shape (len(h), N, N).
 
-        $A = \mathrm{diag}(1/\tau)(\mathbf 1\rho^\top - I)$ is similar to the symmetric
-        $B = y y^\top - \mathrm{diag}(1/\tau)$, $y_k = \sqrt{\rho_k/\tau_k}$, through
-        $S = \mathrm{diag}(\sqrt{\rho_k\tau_k})$, so $e^{Ah} = S^{-1} Q e^{\Lambda h} Q^\top S$
+        $A = \mathrm{diag}(1/\tau)(\mathbf 1 r^\top - I)$ ($r_k = G_k/G_g$, `arm_ratio`) is
+        similar to the symmetric $B = y y^\top - \mathrm{diag}(1/\tau)$,
+        $y_k = \sqrt{r_k/\tau_k}$, through $S = \mathrm{diag}(\sqrt{r_k\tau_k})$, so
+        $e^{Ah} = S^{-1} Q e^{\Lambda h} Q^\top S$
         with one symmetric eigenproblem (its eigenvalues are minus the retardation rates).
         """
         if self.Gk.shape[0] == 1:
@@ -153,48 +150,11 @@ class _ModelCore:
     # ---- propagation over one step ------------------------------------------------------------
 
     def propagate(self, Vp, gp, t0, t1, d0, d1, P):
-        """Attached and free evolution of all points over the full step.
+        """Attached and free evolution of all points over the full step (by the method).
 
         `Vp`: (p, N) states, `gp`: (p,) g at the points. Returns (V_att, V_free, ok).
         """
-        dt = t1 - t0
-        if isinstance(self.method, DiffraxODE):
-            return self._propagate_diffrax(Vp, gp, t0, t1, d0, d1)
-        V_att = _attached_update(Vp, d0 - gp, d1 - d0, dt, self.tau)
-        V_free = Vp @ P.T
-        return V_att, V_free, jnp.asarray(True)
-
-    def _propagate_diffrax(self, Vp, gp, t0, t1, d0, d1):
-        method = self.method
-        dt = t1 - t0
-        rate = safe_div(d1 - d0, dt)
-        tau, A = self.tau, self.A
-        has_span = dt > 0
-
-        def field(t, y, args):
-            va, vf = y
-            d = d0 + rate * (t - t0)
-            return ((d - gp)[:, None] - va) / tau[None, :], vf @ A.T
-
-        # a zero-length step (instantaneous jump of d) leaves the dashpots unchanged
-        t1_safe = jnp.where(has_span, t1, t0 + 1.0)
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(field),
-            method.solver,
-            t0=t0,
-            t1=t1_safe,
-            dt0=None,
-            y0=(Vp, Vp),
-            saveat=diffrax.SaveAt(t1=True),
-            stepsize_controller=diffrax.PIDController(rtol=method.rtol, atol=method.atol),
-            max_steps=method.max_steps,
-            throw=False,
-        )
-        va, vf = sol.ys
-        va = jnp.where(has_span, va[0], Vp)
-        vf = jnp.where(has_span, vf[0], Vp)
-        ok = (sol.result == diffrax.RESULTS.successful) | jnp.logical_not(has_span)
-        return va, vf, ok
+        return self.method.propagate(Vp, gp, t0, t1, d0, d1, P, self.tau, self.A)
 
     # ---- one step -------------------------------------------------------------------------------
 
@@ -230,7 +190,8 @@ class _ModelCore:
             V_new = jnp.where((x < a)[:, None], V_att, V_free)
             E_new = jnp.stack([jnp.where(in_contact, vf_att, V_free[0]), vf_free])
             nan = jnp.asarray(jnp.nan, dtype=a.dtype)
-            return V_new, E_new, a, jnp.asarray(False), nan, jnp.asarray(False)
+            return StepBranch(nodes=V_new, edge=E_new, radius=a, jumped=jnp.asarray(False),
+                              theta_jump=nan, overflow=jnp.asarray(False))
 
         def advancing(_):
             # free side: cells [max(x_j, a), x_{j+1}] for x_{j+1} > a, v linear in zeta
@@ -256,7 +217,7 @@ class _ModelCore:
             phi0 = d0 - gx - V @ arm_ratio
             theta = jnp.where(phi0 >= 0, 0.0, jnp.clip(safe_div(phi0, phi0 - phi_nodes), 0, 1))
             v_theta = V + theta[:, None] * (V_free - V)
-            V_touch = _attached_update(
+            V_touch = attached_update(
                 v_theta, d0 + theta * dd - gx, (1 - theta) * dd, (1 - theta) * dt, self.tau
             )
             V_new = jnp.where(
@@ -266,7 +227,8 @@ class _ModelCore:
             vf_new = jnp.where(exists, v_lo[j] + frac * (v_hi[j] - v_lo[j]), V_touch[-1])
             nan = jnp.asarray(jnp.nan, dtype=a.dtype)
             E_new = jnp.stack([vf_new, vf_new])
-            return V_new, E_new, a_new, jnp.asarray(False), nan, jnp.logical_not(exists)
+            return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jnp.asarray(False),
+                              theta_jump=nan, overflow=jnp.logical_not(exists))
 
         def receding(_):
             cells = self.attached_cells(V_att, vf_att, a, d1)
@@ -291,7 +253,7 @@ class _ModelCore:
                 # implicit-function tangent)
                 return jnp.where(jump, xx - mid, self.cell_R(xx, al, be))
 
-            root = _concave_root(resid, lo, hi, steps=_ROOT_STEPS)
+            root = concave_root(resid, lo, hi, steps=_ROOT_STEPS)
             a_new = jnp.where(jump, 0.0, root)
             s_edge = cells.s_lo[cell] + cells.slope[cell] * (
                 self.geo.zeta(root) - cells.z_lo[cell]
@@ -304,22 +266,22 @@ class _ModelCore:
             theta_front = jnp.clip(safe_div(a - x, a - a_new, 1.0), 0.0, 1.0)
             theta = jnp.where(jump, theta_jump, theta_front)
             theta = jnp.where(jnp.isfinite(theta), theta, 1.0)
-            v_theta = _attached_update(V, d0 - gx, theta * dd, theta * dt, self.tau)
+            v_theta = attached_update(V, d0 - gx, theta * dd, theta * dt, self.tau)
             V_rel = v_theta + (1 - theta)[:, None] * (v_theta @ P.T - v_theta)
             V_new = jnp.where(
                 (x < a_new)[:, None], V_att, jnp.where((x < a)[:, None], V_rel, V_free)
             )
             vf_new = jnp.where(jump, V_new[0], s_edge - self.geo.g(root))
             E_new = jnp.stack([vf_new, vf_new])
-            return V_new, E_new, a_new, jump, theta_jump, jnp.asarray(False)
+            return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jump,
+                              theta_jump=theta_jump, overflow=jnp.asarray(False))
 
-        V_new, E_new, a_new, jumped, theta_jump, overflow = lax.switch(
-            branch, (pinned, advancing, receding), None
-        )
-        F = jnp.where(a_new > 0, self.force(V_new, E_new[0], a_new, d1), 0.0)
+        new = lax.switch(branch, (pinned, advancing, receding), None)
+        a_new = new.radius
+        F = jnp.where(a_new > 0, self.force(new.nodes, new.edge[0], a_new, d1), 0.0)
         out = StepOutput(
-            force=F, radius=a_new, jumped=jumped, theta_jump=theta_jump,
-            ok=ok, overflow=overflow & jnp.logical_not(jnp.asarray(self.geo.flat)),
+            force=F, radius=a_new, depth=d1, jumped=new.jumped, theta_jump=new.theta_jump,
+            ok=ok, overflow=new.overflow & jnp.logical_not(self.geo.covers_contact),
             newton_failed=jnp.asarray(False),
         )
-        return FoundationState(nodes=V_new, edge=E_new, radius=a_new, depth=d1), out
+        return FoundationState(nodes=new.nodes, edge=new.edge, radius=a_new, depth=d1), out

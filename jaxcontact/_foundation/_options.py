@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import equinox as eqx
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, Float
 
-from .._validate import check_positive
+from .._solvers import as_float
+from .._validate import Constraint
 
 #: Default number of cells of the foundation grid (see `FoundationGrid`).
 DEFAULT_CELLS = 64
@@ -22,14 +23,13 @@ class FoundationGrid(eqx.Module):
 
     **Arguments:**
 
-    - `cells`: number of cells $n$ (static). Default `DEFAULT_CELLS` = 64, which keeps the
-      discretisation error of the force at about $2.5\times10^{-5}$ of its peak for an
-      approach-hold-lift history (measured in `benchmarks/bench_foundation.py`; second
-      order, $\propto n^{-2}$, over approach and hold: $1.9\times10^{-5}$ with 64 cells,
-      $7.6\times10^{-5}$ with 32; less regular on the lift, where springs are released
-      between nodes: $2.1\times10^{-4}$ with 32 cells). The elastic solid and a
-      lift from a fully relaxed state are exact on any grid. Use
-      `simulate(..., estimate_error=True)` for an estimate for a given history.
+    - `cells`: number of cells $n$ (static). Default `DEFAULT_CELLS` = 64. The error of the
+      force is second order, $\propto n^{-2}$, over approach and hold (less regular on the
+      lift, where springs are released between nodes); its table for an approach-hold-lift
+      history against a 1,024-cell reference is measured by `benchmarks/bench_foundation.py`
+      (results in `benchmarks/results-forward.md`). The elastic solid and a lift from a
+      fully relaxed state are exact on any grid. `simulate(..., estimate_error=True)`
+      estimates the error for a given history.
     - `depth`: largest indentation $g_\max$ [m] the grid covers. Default, times $(1 + 1/n)$:
       under displacement control the largest input (the contact never extends beyond
       $g(x) = \max_t d(t)$); under compliant loading the indentation at which the relaxed
@@ -41,10 +41,18 @@ class FoundationGrid(eqx.Module):
     """
 
     cells: int = eqx.field(static=True, default=DEFAULT_CELLS)
-    depth: Float[ArrayLike, ""] | None = None
+    depth: Float[Array, ""] | None = eqx.field(
+        default=None, converter=lambda d: None if d is None else as_float(d)
+    )
 
     def __check_init__(self):
         if int(self.cells) < 2:
             raise ValueError(f"`cells` must be >= 2; got {self.cells}.")
-        if self.depth is not None:
-            check_positive("depth", self.depth, "m")
+        for constraint in self.domain():
+            constraint.check()
+
+    def domain(self):
+        """The grid depth, when given: finite and > 0 [m]."""
+        if self.depth is None:
+            return ()
+        return (Constraint("depth", self.depth, "m", kind="length"),)

@@ -9,23 +9,40 @@ import numpy as np
 from jax import lax
 from jaxtyping import ArrayLike, Float
 
+from .._method import AbstractMethod, ExactUpdate
 from .._profiles import AbstractProfile
-from .._pulloff import AbstractMethod, DiffraxODE, ExactUpdate
-from .._solution import RESULTS, ContactSolution, is_error
-from .._solvers import (
-    floats_to_arrays,
-    safe_div,
+from .._rheology import AbstractRheology
+from .._solution import (
+    RESULTS,
+    ContactSolution,
+    ErrorEstimate,
+    FoundationDetails,
+    fold_results,
+    is_error,
+    nan_where,
 )
-from .._validate import check_finite, check_positive, check_times
+from .._solvers import as_float, cast_floats, float_dtype, safe_div, smallest
+from .._validate import (
+    Constraint,
+    check_domain_plausible,
+    check_finite,
+    check_plausible,
+    check_times,
+    domain_ok,
+    domain_plausible,
+    plausibility_enabled,
+    plausible,
+    times_ok,
+    unchecked,
+)
 from ._events import _Model
-from ._geometry import _Geometry, _grid_nodes
 from ._loading import AbstractLoading, DisplacementControl
 from ._options import FoundationGrid
 from ._state import FoundationState, StepStart, _Carry, _MinimumPair
 
 
 def simulate(
-    rheology,
+    rheology: AbstractRheology,
     profile: AbstractProfile,
     work_of_adhesion: Float[ArrayLike, ""],
     ts: Float[ArrayLike, " n"],
@@ -64,12 +81,15 @@ def simulate(
     - `estimate_error`: also solve on a grid with half the cells and report the Richardson
       estimate of the discretisation error of the force,
       $\max_t|F_n - F_{n/2}|/3$ [N] over the samples where both grids agree on being in
-      contact, in `stats["discretisation_error"]` (relative to $\max_t|F_n|$ in
-      `stats["relative_discretisation_error"]`), and of the jump-off time [s] and force [N]
-      (`stats["jumpoff_time_error"]`, `stats["jumpoff_force_error"]`).
-    - `throw`: raise on an error result (`solver_failed`: the diffrax solver failed or the
-      contact outgrew the grid; `invalid_input`: non-finite values). With `False` the status
-      is returned in `.result` (use under `vmap`).
+      contact, and of the jump-off time [s] and force [N], in
+      `details.error_estimate` (an `ErrorEstimate`).
+    - `throw`: raise on an error result (invalid or implausible input; `solver_failed`: the
+      diffrax solver failed or the contact outgrew the grid; `non_finite_result`),
+      whichever field is read. With `False` the status is returned in `.result` per lane
+      (use under `vmap`), and the fields of a lane with invalid input are NaN.
+
+    Precision: float32 when every floating input is float32, float64 otherwise (Python
+    floats take the precision of the arrays they meet).
 
     **Returns:** a `ContactSolution` with `displacement` the indentation $d(t)$ [m],
     `force` $F(t)$ [N] (compressive positive) and `contact_radius` $a(t)$ [m] at `ts`.
@@ -82,79 +102,128 @@ def simulate(
     - `max_tensile_force`: the most negative force, refined between samples (see the module
       docstring); 0 if the history never touches.
     - `result`: `detached` if the history ends out of contact, `in_contact` otherwise (a
-      history may re-attach after a jump-off; `stats["jumpoffs"]` counts them), or an error.
-    - `stats`: `cells`, `grid_radius` [m] and `nodes` [m] of the grid, `jumpoffs`,
-      `grid_overflow`, `drive` (the input), `final_state` (the foundation state at `ts[-1]`:
-      node dashpots, edge springs, radius, indentation), for compliant loading
-      `newton_failures` (samples where Newton's method did not converge without losing the
-      contact), and with `estimate_error` the error estimates above.
+      history may re-attach after a jump-off; `jumpoffs` counts them), or an error.
+    - `details`: a `FoundationDetails` (the grid, the input, the final state, the compliant
+      loading's Newton failures, the error estimate).
 
     Everything is differentiable with respect to the rheology, the profile, $\Delta\gamma$
     and the input, and works under `jit` and `vmap`.
     """
-    check_positive("work_of_adhesion", work_of_adhesion, "J/m^2")
-    ts = jnp.asarray(ts, dtype=float)
-    check_times(ts)
-    u = jnp.asarray(displacement, dtype=float)
-    if u.shape != ts.shape:
-        raise ValueError(
-            f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {u.shape}."
-        )
-    check_finite("displacement", u, "m")
-    if grid is None:
-        grid = FoundationGrid()
-    elif isinstance(grid, int | np.integer):
-        grid = FoundationGrid(cells=int(grid))
+    if not isinstance(rheology, AbstractRheology):
+        raise TypeError(f"`rheology` must be an AbstractRheology; got {type(rheology).__name__}.")
+    if not isinstance(profile, AbstractProfile):
+        raise TypeError(f"`profile` must be an AbstractProfile; got {type(profile).__name__}.")
     if not isinstance(loading, AbstractLoading):
         raise TypeError(
             "`loading` must be an AbstractLoading (DisplacementControl() or "
             f"CompliantLoading(k)); got {loading!r}."
         )
-    if not isinstance(method, ExactUpdate | DiffraxODE):
+    if not isinstance(method, AbstractMethod):
         raise TypeError(f"`method` must be ExactUpdate() or DiffraxODE(...); got {method!r}.")
+    if grid is None:
+        grid = FoundationGrid()
+    elif isinstance(grid, int | np.integer):
+        grid = FoundationGrid(cells=int(grid))
+    elif not isinstance(grid, FoundationGrid):
+        raise TypeError(f"`grid` must be a FoundationGrid or an int; got {grid!r}.")
+    dgamma = Constraint("work_of_adhesion", work_of_adhesion, "J/m^2", kind="work_of_adhesion")
+    dgamma.check()
+    check_times(ts)
+    ts = as_float(ts)
+    u = as_float(displacement)
+    if u.shape != ts.shape:
+        raise ValueError(
+            f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {u.shape}."
+        )
+    check_finite("displacement", u, "m")
+    check_plausibility = plausibility_enabled()
+    if check_plausibility:
+        for obj in (rheology, profile, loading, grid):
+            check_domain_plausible(obj)
+        check_plausible("work_of_adhesion", work_of_adhesion, "work_of_adhesion")
+        check_plausible("ts", ts, "time", magnitude=True)
+        check_plausible("displacement", u, "length", magnitude=True)
 
     # one compiled program serves every call with the same configuration (types, static
     # options, shapes), whatever the parameter values
-    rheology, profile, work_of_adhesion, loading, grid = floats_to_arrays(
-        (rheology, profile, work_of_adhesion, loading, grid)
+    dtype = float_dtype(rheology, profile, work_of_adhesion, ts, u, loading, grid)
+    rheology, profile, work_of_adhesion, ts, u, loading, grid = cast_floats(
+        (rheology, profile, as_float(work_of_adhesion), ts, u, loading, grid), dtype
     )
-    sol = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
+    sol = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
+                        check_plausibility)
     if estimate_error:
         coarse = FoundationGrid(cells=max(grid.cells // 2, 2), depth=grid.depth)
-        sol_c = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, coarse, method)
+        sol_c = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, coarse,
+                              method, check_plausibility)
         # samples where one grid has jumped off and the other not are left out: near the
         # fold the front moves as sqrt(t* - t) and any shift of t* is a large force jump
         both = (sol.contact_radius > 0) == (sol_c.contact_radius > 0)
         err = jnp.max(jnp.where(both, jnp.abs(sol.force - sol_c.force), 0.0)) / 3.0
         scale = jnp.max(jnp.abs(sol.force))
-        stats = dict(sol.stats)
-        stats.update(
-            discretisation_error=err,
-            relative_discretisation_error=safe_div(err, scale, jnp.nan),
-            jumpoff_time_error=jnp.abs(sol.jumpoff_time - sol_c.jumpoff_time) / 3.0,
-            jumpoff_force_error=jnp.abs(sol.jumpoff_force - sol_c.jumpoff_force) / 3.0,
+        estimate = ErrorEstimate(
+            force=err,
+            relative_force=safe_div(err, scale, jnp.nan),
+            jumpoff_time=jnp.abs(sol.jumpoff_time - sol_c.jumpoff_time) / 3.0,
+            jumpoff_force=jnp.abs(sol.jumpoff_force - sol_c.jumpoff_force) / 3.0,
         )
-        sol = eqx.tree_at(lambda s: s.stats, sol, stats)
+        sol = eqx.tree_at(lambda s: s.details.error_estimate, sol, estimate,
+                          is_leaf=lambda x: x is None)
     if throw:
-        force = sol.result.error_if(sol.force, is_error(sol.result))
-        sol = eqx.tree_at(lambda s: s.force, sol, force)
+        sol = sol.result.error_if(sol, is_error(sol.result))
     return sol
 
 
-def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
-    geo = _Geometry(profile)
+def _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
+                  check_plausibility):
+    """`(ok, RESULTS item)` of every input, in the order of the arguments."""
+    dgamma = Constraint("work_of_adhesion", work_of_adhesion, "J/m^2", kind="work_of_adhesion")
+    checks = [
+        (domain_ok(rheology), RESULTS.invalid_rheology),
+        (domain_ok(profile), RESULTS.invalid_profile),
+        (dgamma.ok(), RESULTS.invalid_work_of_adhesion),
+        (times_ok(ts), RESULTS.invalid_times),
+        (jnp.all(jnp.isfinite(u)), RESULTS.invalid_displacement),
+        (domain_ok(loading), RESULTS.invalid_loading),
+        (domain_ok(grid), RESULTS.invalid_depth),
+    ]
+    if check_plausibility:
+        ok = domain_plausible(rheology) & domain_plausible(profile)
+        ok = ok & domain_plausible(loading) & domain_plausible(grid)
+        ok = ok & plausible(work_of_adhesion, "work_of_adhesion")
+        ok = ok & plausible(ts, "time", magnitude=True)
+        ok = ok & plausible(u, "length", magnitude=True)
+        checks.append((ok, RESULTS.implausible_input))
+    return checks
+
+
+def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
+              check_plausibility):
+    with unchecked():
+        checks = _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
+                               check_plausibility)
+        sol = _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
+    inputs_ok = jnp.asarray(True)
+    for ok, _ in checks:
+        inputs_ok = inputs_ok & ok
+    sol = eqx.tree_at(lambda s: s.result, sol, fold_results(sol.result, checks))
+    return nan_where(jnp.logical_not(inputs_ok), sol)
+
+
+def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
+    geo = profile.touch_coordinate()
     cells = int(grid.cells)
+    dtype = ts.dtype
     if grid.depth is None:
         depth = jnp.maximum(jnp.max(u), 0.0)
-        depth = loading.grid_depth(rheology, profile, depth, geo.flat)
+        depth = loading.grid_depth(rheology, profile, depth)
         depth = depth * (1.0 + 1.0 / cells)
     else:
-        depth = jnp.asarray(grid.depth, dtype=float)
-    depth = lax.stop_gradient(jnp.maximum(depth, jnp.finfo(float).tiny))
-    x_nodes = lax.stop_gradient(_grid_nodes(geo, cells, depth))
+        depth = grid.depth
+    depth = lax.stop_gradient(jnp.maximum(depth, jnp.finfo(dtype).tiny))
+    x_nodes = lax.stop_gradient(geo.nodes(cells, depth))
     model = _Model(rheology, profile, work_of_adhesion, x_nodes, method)
     N = model.Gk.shape[0]
-    dtype = model.Gi.dtype
 
     # one free-relaxation propagator per sample interval (the first one is a zero step)
     dts = jnp.diff(ts, prepend=ts[:1])
@@ -168,7 +237,8 @@ def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
     a0 = jnp.zeros((), dtype=dtype)
     d_start = jnp.minimum(u[0], 0.0)
     state0 = FoundationState(nodes=V0, edge=E0, radius=a0, depth=d_start)
-    pre0 = StepStart(V0, vf0, a0, ts[0], ts[0], d_start, d_start)
+    pre0 = StepStart(nodes=V0, edge_spring=vf0, radius=a0, t0=ts[0], t1=ts[0], d0=d_start,
+                     d1=d_start)
     inf = jnp.asarray(jnp.inf, dtype=dtype)
 
     def body(carry, inp):
@@ -176,109 +246,105 @@ def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
         t0, t1, z0, z1, P = inp
         new_state, out, S = loading.step(model, state, t0, t1, z0, z1, P, carry.stiffness, depth)
         first = out.jumped & jnp.logical_not(found)
-        V, E, a, d0 = state.nodes, state.edge, state.radius, state.depth
-        cand = StepStart(V, E[0], a, t0, t1, d0, new_state.depth)
+        cand = StepStart(nodes=state.nodes, edge_spring=state.edge[0], radius=state.radius,
+                         t0=t0, t1=t1, d0=state.depth, d1=new_state.depth)
         pre = jax.tree_util.tree_map(lambda c, p: jnp.where(first, c, p), cand, pre)
         found = found | out.jumped
         # keep the states before and at the lowest force in contact (dense output after)
         lower = (new_state.radius > 0) & (out.force < carry.min_force)
-        pair = _MinimumPair(V, E[0], a, new_state.nodes, new_state.edge[0], new_state.radius)
+        pair = _MinimumPair(
+            nodes_before=state.nodes, edge_before=state.edge[0], radius_before=state.radius,
+            nodes_at=new_state.nodes, edge_at=new_state.edge[0], radius_at=new_state.radius,
+        )
         min_pair = jax.tree_util.tree_map(
             lambda c, p: jnp.where(lower, c, p), pair, carry.min_pair
         )
         min_force = jnp.where(lower, out.force, carry.min_force)
-        ys = (new_state.depth, out, S)
-        carry = _Carry(new_state, pre, found, S, min_pair, min_force)
-        return carry, ys
+        carry = _Carry(state=new_state, jumpoff_step=pre, found=found, stiffness=S,
+                       min_pair=min_pair, min_force=min_force)
+        return carry, out
 
     zero = jnp.zeros((), dtype=dtype)
-    pair0 = _MinimumPair(V0, vf0, a0, V0, vf0, a0)
-    carry0 = _Carry(state0, pre0, jnp.asarray(False), zero, pair0, inf)
-    carry_end, ys = lax.scan(body, carry0, (t_prev, ts, u_prev, u, P_all))
-    state_end, pre, found, min_pair = (
-        carry_end.state, carry_end.jumpoff_step, carry_end.found, carry_end.min_pair
-    )
-    d, out, _ = ys
-    force, radius, jumped = out.force, out.radius, out.jumped
-    ok, overflow, newton_failed = out.ok, out.overflow, out.newton_failed
+    pair0 = _MinimumPair(nodes_before=V0, edge_before=vf0, radius_before=a0, nodes_at=V0,
+                         edge_at=vf0, radius_at=a0)
+    carry0 = _Carry(state=state0, jumpoff_step=pre0, found=jnp.asarray(False), stiffness=zero,
+                    min_pair=pair0, min_force=inf)
+    carry_end, out = lax.scan(body, carry0, (t_prev, ts, u_prev, u, P_all))
+    pre, found, min_pair = carry_end.jumpoff_step, carry_end.found, carry_end.min_pair
+    d, force, radius, jumped = out.depth, out.force, out.radius, out.jumped
 
     # ---- jump-off ---------------------------------------------------------------------------
     nan = jnp.asarray(jnp.nan, dtype=dtype)
     i_j = jnp.argmax(jumped)
     # on lanes without a jump-off refine a harmless stand-in (a pinned toy state)
-    V, vf, a, t0, t1, d0, d1 = pre.unpack()
-    safe = found & (a > 0)
+    safe = found & (pre.radius > 0)
     pre_safe = StepStart(
-        jnp.where(safe, V, 0.0),
-        jnp.where(safe, vf, 0.0),
-        jnp.where(safe, a, x_nodes[-1] * 0.5),
-        jnp.where(safe, t0, 0.0),
-        jnp.where(safe, t1, 1.0),
-        jnp.where(safe, d0, model.geo.g(x_nodes[-1] * 0.5)),
-        jnp.where(safe, d1, -depth),
+        nodes=jnp.where(safe, pre.nodes, 0.0),
+        edge_spring=jnp.where(safe, pre.edge_spring, 0.0),
+        radius=jnp.where(safe, pre.radius, x_nodes[-1] * 0.5),
+        t0=jnp.where(safe, pre.t0, 0.0),
+        t1=jnp.where(safe, pre.t1, 1.0),
+        d0=jnp.where(safe, pre.d0, model.geo.g(x_nodes[-1] * 0.5)),
+        d1=jnp.where(safe, pre.d1, -depth),
     )
-    j_time, j_disp, j_rad, j_force = loading.refine_jumpoff(
+    jump = loading.refine_jumpoff(
         model, model.refine_jumpoff(pre_safe), pre_safe, safe, i_j, ts, u, d, radius, force
     )
-
-    jumpoff_time = jnp.where(found, j_time, nan)
-    jumpoff_disp = jnp.where(found, j_disp, nan)
-    jumpoff_radius = jnp.where(found, j_rad, nan)
-    jumpoff_force = jnp.where(found, j_force, nan)
+    jumpoff_time = jnp.where(found, jump.time, nan)
+    jumpoff_disp = jnp.where(found, jump.displacement, nan)
+    jumpoff_radius = jnp.where(found, jump.radius, nan)
+    jumpoff_force = jnp.where(found, jump.force, nan)
 
     # ---- largest tensile force ------------------------------------------------------------
-    # Candidates: the sample minimum; the minimum along the receding front inside the steps
-    # before and after it (dense output, `front_minimum`, which includes the kink where a
-    # pinned edge starts to recede; up to the jump-off radius when the contact jumps off in
-    # the step after); the jump-off force.
+    # Candidates: the jump-off force; the minimum along the receding front inside the steps
+    # before and after the sample minimum (dense output, `front_minimum`, which includes
+    # the kink where a pinned edge starts to recede; up to the jump-off radius when the
+    # contact jumps off in the step after); the sample minimum. Ties take the derivative of
+    # the first (the refined values before the sampled one).
     in_c = radius > 0
     f_masked = jnp.where(in_c, force, jnp.inf)
     i_m = jnp.argmin(f_masked)
     n_s = ts.shape[0]
     any_contact = jnp.any(in_c)
-    f_min = jnp.where(any_contact, f_masked[i_m], 0.0)
-    Vb, vfb, ab = min_pair.nodes_before, min_pair.edge_before, min_pair.radius_before
-    Vm, vfm, am = min_pair.nodes_at, min_pair.edge_at, min_pair.radius_at
+    f_sample = jnp.where(any_contact, f_masked[i_m], 0.0)
     im1, ip1 = jnp.maximum(i_m - 1, 0), jnp.minimum(i_m + 1, n_s - 1)
     before = (i_m > 0) & any_contact
     after = (i_m < n_s - 1) & any_contact
     a_after = jnp.where(found & (i_j == i_m + 1), jumpoff_radius, radius[ip1])
     # the two steps as a batch of two (one copy of the dense output in the program)
     steps_pre = StepStart(
-        jnp.stack([Vb, Vm]),
-        jnp.stack([vfb, vfm]),
-        jnp.stack([jnp.where(before, ab, 0.0), jnp.where(after, am, 0.0)]),
-        jnp.stack([ts[im1], ts[i_m]]),
-        jnp.stack([ts[i_m], ts[ip1]]),
-        jnp.stack([jnp.where(i_m > 0, d[im1], 0.0), d[i_m]]),
-        jnp.stack([d[i_m], d[ip1]]),
+        nodes=jnp.stack([min_pair.nodes_before, min_pair.nodes_at]),
+        edge_spring=jnp.stack([min_pair.edge_before, min_pair.edge_at]),
+        radius=jnp.stack([jnp.where(before, min_pair.radius_before, 0.0),
+                          jnp.where(after, min_pair.radius_at, 0.0)]),
+        t0=jnp.stack([ts[im1], ts[i_m]]),
+        t1=jnp.stack([ts[i_m], ts[ip1]]),
+        d0=jnp.stack([jnp.where(i_m > 0, d[im1], 0.0), d[i_m]]),
+        d1=jnp.stack([d[i_m], d[ip1]]),
     )
-    ends = jnp.stack([jnp.where(before, am, 0.0), jnp.where(after, a_after, 0.0)])
+    ends = jnp.stack([jnp.where(before, min_pair.radius_at, 0.0),
+                      jnp.where(after, a_after, 0.0)])
     f_steps = jax.vmap(model.front_minimum)(steps_pre, ends)
-    f_before, f_after = f_steps[0], f_steps[1]
-    f_min = jnp.minimum(f_min, jnp.minimum(f_before, f_after))
-    max_tensile = jnp.minimum(f_min, jnp.where(found, jumpoff_force, jnp.inf))
+    f_jump = jnp.where(found, jumpoff_force, jnp.inf)
+    max_tensile = smallest(jnp.stack([f_jump, f_steps[0], f_steps[1], f_sample]))
 
     # ---- status ---------------------------------------------------------------------------
     result = RESULTS.where(radius[-1] > 0, RESULTS.in_contact, RESULTS.detached)
-    failed = jnp.logical_not(jnp.all(ok)) | jnp.any(overflow)
+    failed = jnp.logical_not(jnp.all(out.ok)) | jnp.any(out.overflow)
     result = RESULTS.where(failed, RESULTS.solver_failed, result)
     finite = jnp.all(jnp.isfinite(force)) & jnp.all(jnp.isfinite(radius))
-    finite = finite & jnp.all(jnp.isfinite(u)) & jnp.all(jnp.isfinite(ts))
-    finite = finite & jnp.isfinite(model.c) & jnp.isfinite(model.Gg)
-    finite = finite & jnp.all(jnp.isfinite(model.tau)) & jnp.isfinite(model.Gi)
-    result = RESULTS.where(finite, result, RESULTS.invalid_input)
+    finite = finite & jnp.isfinite(max_tensile)
+    result = RESULTS.where(finite, result, RESULTS.non_finite_result)
 
-    stats = dict(
-        cells=jnp.asarray(cells),
-        grid_radius=x_nodes[-1],
+    details = FoundationDetails(
+        cells=cells,
         nodes=x_nodes,
-        jumpoffs=jnp.sum(jumped),
-        grid_overflow=jnp.any(overflow),
+        grid_radius=x_nodes[-1],
+        grid_overflow=jnp.any(out.overflow),
         drive=u,
-        final_state=state_end,
+        final_state=carry_end.state,
+        newton_failures=jnp.sum(out.newton_failed),
     )
-    stats.update(loading.stats(newton_failed))
     return ContactSolution(
         ts=ts,
         displacement=d,
@@ -289,8 +355,9 @@ def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
         jumpoff_force=jumpoff_force,
         jumpoff_radius=jumpoff_radius,
         jumpoff_displacement=jumpoff_disp,
+        jumpoffs=jnp.sum(jumped),
         result=result,
-        stats=stats,
+        details=details,
     )
 
 

@@ -42,15 +42,43 @@ class StepStart(eqx.Module):
     d0: Float[Array, ""]
     d1: Float[Array, ""]
 
-    def unpack(self):
-        """`(nodes, edge_spring, radius, t0, t1, d0, d1)`."""
-        return self.nodes, self.edge_spring, self.radius, self.t0, self.t1, self.d0, self.d1
+
+class StepBranch(eqx.Module):
+    """The new state of one branch of a step (pinned, advancing or receding edge).
+
+    **Fields:** `nodes` `(n_nodes, N)`, `edge` `(2, N)` [m] and `radius` [m] at the end of
+    the step; `jumped` (the contact jumped off in the step); `theta_jump` (the step fraction
+    of that jump-off from the criterion, `nan` without); `overflow` (the contact outgrew the
+    grid).
+    """
+
+    nodes: Float[Array, "nodes arms"]
+    edge: Float[Array, "2 arms"]
+    radius: Float[Array, ""]
+    jumped: Bool[Array, ""]
+    theta_jump: Float[Array, ""]
+    overflow: Bool[Array, ""]
+
+
+class JumpOff(eqx.Module):
+    """A jump-off located inside a step.
+
+    **Fields:** `time` [s], `displacement` (indentation) [m], `radius` [m], `force` [N];
+    `valid`: the step brackets the event (else the values are a stand-in).
+    """
+
+    time: Float[Array, ""]
+    displacement: Float[Array, ""]
+    radius: Float[Array, ""]
+    force: Float[Array, ""]
+    valid: Bool[Array, ""]
 
 
 class StepOutput(eqx.Module):
     """What one step reports besides the new state.
 
-    **Fields:** `force` $F$ [N] and `radius` $a$ [m] at the end of the step; `jumped`
+    **Fields:** `force` $F$ [N], `radius` $a$ [m] and `depth` (indentation) $d$ [m] at the
+    end of the step; `jumped`
     (the contact jumped off in the step); `theta_jump` (the step fraction of the jump-off
     estimated from the criterion, `nan` without jump-off); `ok` (the ODE solver succeeded);
     `overflow` (the contact outgrew the grid); `newton_failed` (compliant loading: Newton's
@@ -59,6 +87,7 @@ class StepOutput(eqx.Module):
 
     force: Float[Array, ""]
     radius: Float[Array, ""]
+    depth: Float[Array, ""]
     jumped: Bool[Array, ""]
     theta_jump: Float[Array, ""]
     ok: Bool[Array, ""]

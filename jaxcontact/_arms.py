@@ -1,0 +1,161 @@
+r"""Exact updates of the Maxwell-arm (dashpot) variables for piecewise-linear inputs.
+
+A Maxwell arm $k$ with relaxation time $\tau_k$ driven by a displacement $u(t)$ that is linear
+over a step of length $\Delta$ has the dashpot displacement
+$v \leftarrow v\,e^{-s} + u_0(1 - e^{-s}) + \Delta u\,\psi(s)$, $s = \Delta/\tau_k$
+(`attached_update`, `docs/physics.md` §5). The relaxed-start model (`retract`) needs the
+same update in the form of an internal variable per arm, $w_k \leftarrow \alpha w_k +
+(G_k/G_g)\,\Delta\delta\,\phi(s)$ with $\alpha = e^{-s}$ (`states_samples`, all samples by
+one associative scan), or in closed form for a constant-speed lift (`states_velocity`).
+
+- `phi(s)` $= (1 - e^{-s})/s$, `dphi(s)` $= \phi'(s)$, `psi(s)` $= 1 - \phi(s)$.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jax.custom_derivatives import SymbolicZero
+
+__all__ = [
+    "attached_update",
+    "dphi",
+    "phi",
+    "psi",
+    "states_samples",
+    "states_velocity",
+]
+
+
+def phi(x):
+    r"""$\phi(x) = (1 - e^{-x})/x$ for $x \ge 0$, with the limit $\phi(0) = 1$."""
+    safe = jnp.where(x > 0, x, 1.0)
+    return jnp.where(x > 0, -jnp.expm1(-safe) / safe, 1.0)
+
+
+def dphi(x):
+    r"""$\phi'(x) = (e^{-x} - \phi(x))/x$ without cancellation (series below $x = 0.01$)."""
+    small = x < 0.01
+    xs = jnp.where(small, x, 0.0)
+    series = -1 / 2 + xs * (1 / 3 + xs * (-1 / 8 + xs * (1 / 30 + xs * (-1 / 144 + xs / 840))))
+    xl = jnp.where(small, 1.0, x)
+    return jnp.where(small, series, (jnp.exp(-xl) - phi(xl)) / xl)
+
+
+def psi(s):
+    r"""$\psi(s) = 1 - (1 - e^{-s})/s$ for $s \ge 0$, $\psi(0) = 0$.
+
+    Evaluated directly: its absolute error is of the order of the machine epsilon for every
+    $s$ (the relative error grows like $\epsilon/s$ for small $s$, but $\psi$ only enters
+    as the increment $\Delta u\,\psi$ added to a dashpot displacement, so the absolute error
+    is what matters).
+    """
+    pos = s > 0
+    ss = jnp.where(pos, s, 1.0)
+    return jnp.where(pos, 1.0 + jnp.expm1(-ss) / ss, 0.0)
+
+
+def attached_update(v, u0, du, dt, tau):
+    r"""Exact update of attached dashpots over `dt` with $u$ linear from `u0` by `du`.
+
+    `v`: (..., N); `u0`, `du`, `dt`: (...) or scalars; `tau`: (N,); returns (..., N).
+    """
+    rank = max(jnp.ndim(v), jnp.ndim(dt) + 1, jnp.ndim(u0) + 1, jnp.ndim(du) + 1)
+
+    def column(z):  # (...) -> (1, ..., 1, ..., 1) of rank `rank`, a trailing arm axis
+        z = jnp.asarray(z)[..., None]
+        return jnp.reshape(z, (1,) * (rank - z.ndim) + z.shape)
+
+    s = column(dt) / jnp.reshape(tau, (1,) * (rank - 1) + tau.shape)
+    e = jnp.exp(-s)
+    v = jnp.reshape(v, (1,) * (rank - jnp.ndim(v)) + jnp.shape(v))
+    return v * e - column(u0) * jnp.expm1(-s) + column(du) * psi(s)
+
+
+def states_velocity(ts, velocity, arm_ratio, tau):
+    r"""Arm variables of a constant-speed lift from rest, shape `(n, N)`:
+    $w_k(t) = -(G_k/G_g)\,\tau_k v\,(1 - e^{-t/\tau_k})$.
+
+    Written without a per-sample division, so that XLA fuses it with the front root into one
+    pass.
+    """
+    t, arm_ratio, tau = ts[:, None], arm_ratio[None, :], tau[None, :]
+    return (arm_ratio * velocity * tau) * jnp.expm1(t * (-1.0 / tau))
+
+
+def _combine(left, right):
+    a1, b1 = left
+    a2, b2 = right
+    return a1 * a2, a2 * b1 + b2
+
+
+def _recurrence(alpha, beta):
+    """$w_i = \\alpha_i w_{i-1} + \\beta_i$, $w_{-1} = 0$, along axis 0; `beta` may carry
+    extra trailing axes (several right-hand sides share the products of the alphas)."""
+    extra = beta.ndim - alpha.ndim
+    a = alpha.reshape(alpha.shape + (1,) * extra)
+    return lax.associative_scan(_combine, (a, beta), axis=0)[1]
+
+
+def _increments(dt, tau):
+    x = dt / tau
+    return x, jnp.exp(-x), phi(x)
+
+
+@jax.custom_jvp
+def _states_increments(dt, ddelta, arm_ratio, tau):
+    # w = L(alpha) (arm_ratio ddelta phi(x)), x = dt/tau; shapes (n, 1), (n, 1), (1, N), (1, N)
+    _, alpha, ph = _increments(dt, tau)
+    return _recurrence(alpha, arm_ratio * ddelta * ph)
+
+
+def _states_increments_jvp(primals, tangents):
+    r"""Tangents of the arm states through two fixed sensitivities.
+
+    With $u = L(\alpha)(\Delta\delta\,\phi(x))$ the states are $w = (G_k/G_g)\,u$, and
+    $v = \partial w/\partial\tau = L(\alpha)\,q$ with
+    $q = x\,[\alpha\,w_{i-1} - (G_k/G_g)\Delta\delta\,\phi'(x)]/\tau$. Both come
+    from one scan that shares the products of the $\alpha$s, so any number of tangent
+    directions (the Jacobian's columns) costs two element-wise products,
+    $\dot w = u\,\dot r + v\,\dot\tau$, and under `jax.linearize` no scan is left in the
+    linear map. Tangents of the sampling (`dt`, `ddelta`: a differentiated displacement
+    history) need their own scan and only run when present.
+    """
+    dt, ddelta, arm_ratio, tau = primals
+    t_dt, t_ddelta, t_ratio, t_tau = tangents
+    x, alpha, ph = _increments(dt, tau)
+    u = _recurrence(alpha, ddelta * ph)
+    w = arm_ratio * u
+    w_prev = jnp.concatenate([jnp.zeros_like(w[:1]), w[:-1]])
+    dph = dphi(x)
+    q = x * (alpha * w_prev - arm_ratio * ddelta * dph) / tau
+    v = _recurrence(alpha, q)
+    zero = lambda t: isinstance(t, SymbolicZero)  # noqa: E731 - JAX's marker of a zero tangent
+    dw = jnp.zeros_like(w)
+    if not zero(t_ratio):
+        dw = dw + u * t_ratio
+    if not zero(t_tau):
+        dw = dw + v * t_tau
+    if not (zero(t_dt) and zero(t_ddelta)):
+        # dw = L(alpha) (dbeta + dalpha w_prev) for the sampling's own tangents
+        forcing = jnp.zeros_like(w)
+        if not zero(t_ddelta):
+            forcing = forcing + arm_ratio * t_ddelta * ph
+        if not zero(t_dt):
+            forcing = forcing + (arm_ratio * ddelta * dph - alpha * w_prev) * (t_dt / tau)
+        dw = dw + _recurrence(alpha, forcing)
+    return w, dw
+
+
+_states_increments.defjvp(_states_increments_jvp, symbolic_zeros=True)
+
+
+def states_samples(ts, delta, arm_ratio, tau):
+    r"""Arm variables at the samples of a piecewise-linear history $\delta(t_i)$, shape
+    `(n, N)`: the exact update over each interval, the first sample responding as a step
+    from rest. One associative scan; a custom JVP through two fixed sensitivities."""
+    dt = jnp.diff(ts, prepend=ts[:1])[:, None]
+    ddelta = jnp.diff(delta, prepend=0.0)[:, None]
+    # all four of rank 2: (n, 1), (n, 1), (1, N), (1, N)
+    return _states_increments(dt, ddelta, arm_ratio[None, :], tau[None, :])

@@ -138,8 +138,9 @@ def elastic_solve(cells, repeats):
           f"F = {force:.4g} N, square of side 4a (a the Hertz radius). Medians of "
           f"{repeats} solves after a first (compiling) call. tamaas n²: periodic on the same "
           "cells; tamaas (2n)²: the height map padded with far-away heights to the FFT size "
-          "of jaxcontact. Differences of the contact area (cells) and of the peak pressure "
-          "are between jaxcontact and tamaas (2n)².\n")
+          "of jaxcontact. Wall time, CPU time (all threads) in parentheses. Differences of the "
+          "contact area (cells) and of the peak pressure are between jaxcontact and tamaas "
+          "(2n)².\n")
     print("| cells | jaxcontact [s] | tamaas n² [s] | tamaas (2n)² [s] | jc / tamaas n² "
           "| jc / tamaas (2n)² | area jc/tm - 1 | p_max jc/tm - 1 | depth jc/Hertz - 1 |")
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
@@ -150,7 +151,7 @@ def elastic_solve(cells, repeats):
         def run_jc(grid=grid, h=h):
             return jc.bem_contact(h, grid=grid, effective_modulus=E_STAR, force=force)
 
-        (_, d_jc, p_jc), _, t_jc, _ = _timed(run_jc, repeats)
+        (_, d_jc, p_jc), _, t_jc, c_jc = _timed(run_jc, repeats)
         p_jc = np.asarray(p_jc)
         res = {}
         if tm is not None:
@@ -160,7 +161,7 @@ def elastic_solve(cells, repeats):
             padded[:n, :n] = h
             for key, surf, size in (("n", h, L), ("2n", padded, 2 * L)):
                 m = surf.shape[0]
-                times = []
+                times, cpus = [], []
                 for _ in range(repeats + 1):
                     model = tm.ModelFactory.createModel(tm.model_type.basic_2d, [size, size],
                                                         [m, m])
@@ -169,16 +170,20 @@ def elastic_solve(cells, repeats):
                                                 tm.PolonskyKeerRey.pressure,
                                                 tm.PolonskyKeerRey.pressure)
                     solver.max_iter = 10000
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     solver.solve(force / size**2)
                     times.append(time.perf_counter() - t0)
+                    cpus.append(time.process_time() - c0)
                 trac = np.asarray(model.traction).reshape(m, m)[:n, :n]
-                res[key] = (statistics.median(times[1:]), trac)
+                res[key] = (statistics.median(times[1:]), statistics.median(cpus[1:]), trac)
         d_hertz = (3 * force / (4 * E_STAR * np.sqrt(R))) ** (2 / 3)
-        t_n = res["n"][0] if res else float("nan")
-        t_2n, trac = res["2n"] if res else (float("nan"), np.full_like(p_jc, np.nan))
-        print(f"| {n}² | {t_jc:.3f} | {t_n:.3f} | {t_2n:.3f} | {t_jc / t_n:.2f} "
-              f"| {t_jc / t_2n:.2f} | {np.sum(p_jc > 0) / np.sum(trac > 0) - 1:+.1e} "
+        nan = float("nan")
+        t_n, c_n, _ = res.get("n", (nan, nan, None))
+        t_2n, c_2n, trac = res.get("2n", (nan, nan, np.full_like(p_jc, nan)))
+        print(f"| {n}² | {t_jc:.3f} ({c_jc:.3f}) | {t_n:.3f} ({c_n:.3f}) "
+              f"| {t_2n:.3f} ({c_2n:.3f}) | {t_jc / t_n:.2f} ({c_jc / c_n:.2f}) "
+              f"| {t_jc / t_2n:.2f} ({c_jc / c_2n:.2f}) "
+              f"| {np.sum(p_jc > 0) / np.sum(trac > 0) - 1:+.1e} "
               f"| {p_jc.max() / trac.max() - 1:+.1e} | {float(d_jc) / d_hertz - 1:+.4f} |",
               flush=True)
 

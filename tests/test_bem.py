@@ -80,6 +80,16 @@ def test_flat_punch_stiffness():
     grid = jc.BEMGrid(64, 2.2 * a)
     force, _, p = jc.bem_contact(jc.FlatPunch(a), d, grid=grid, effective_modulus=E_STAR)
     assert float(force) == pytest.approx(2 * a * E_STAR * d, rel=0.02)
+    # tilted by alpha and pressed to d >= 3 a tan(alpha) at its lowest edge, the whole face
+    # is in contact and the force follows the centre's indentation: F = 2 a E* (d - a tan a)
+    alpha = 0.002
+    h = jc.tilted_flat_heights(grid, a, alpha)
+    d = 5 * a * np.tan(alpha)
+    force, _, p = jc.bem_contact(h, d, grid=grid, effective_modulus=E_STAR)
+    assert float(force) == pytest.approx(2 * a * E_STAR * (d - a * np.tan(alpha)), rel=0.02)
+    x, y = grid.coordinates()
+    face = np.asarray(x**2 + y**2 <= a**2)
+    assert np.all(np.asarray(p)[face] > 0) and np.all(np.asarray(p)[~face] == 0)
 
 
 def test_rough_surface_contact():

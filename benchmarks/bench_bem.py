@@ -207,7 +207,9 @@ def convergence(cells):
           "15 approach steps to 1.5 a_JKR, 60 lift steps to 1.3 d_JKR,dc (square of side 2.4 "
           "x 1.5 a_JKR). Force control: 15 loading steps to the JKR force at 2 a_JKR, 60 "
           "unloading steps to 2 x (-3/2 pi dgamma R) (side 2.4 x 2 a_JKR). Errors relative "
-          "to the JKR values; order = log2(e_n / e_2n).\n")
+          "to the JKR values (the jump-off displacement against d_JKR,dc = a²/R - "
+          "sqrt(2 pi a dgamma / E*) at a = (pi dgamma R²/(8E*))^(1/3)); order = "
+          "log2(e_n / e_2n).\n")
     rows = []
     for n in cells:
         dc = jc.bem_simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA, ts, disp,
@@ -217,15 +219,16 @@ def convergence(cells):
                              grid=grid_fc)
         rows.append((n, R / float(jc.BEMGrid(n, 2.4 * a0).cell_size),
                      float(dc.max_tensile_force) / F_FC - 1, float(dc.jumpoff_force) / F_DC - 1,
-                     R / float(grid_fc.cell_size), float(fc.jumpoff_force) / F_FC - 1))
+                     R / float(grid_fc.cell_size), float(fc.jumpoff_force) / F_FC - 1,
+                     float(dc.jumpoff_displacement) / D_DC - 1))
         print(f"<!-- {rows[-1]} -->", flush=True)
-    o1, o2, o3 = (_order([r[k] for r in rows]) for k in (2, 3, 5))
-    print("| cells | R/Δ (dc) | dc: max tensile err | order | dc: jump-off err | order "
-          "| R/Δ (fc) | fc: pull-off err | order |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    o1, o2, o3, o4 = (_order([r[k] for r in rows]) for k in (2, 3, 5, 6))
+    print("| cells | R/Δ (dc) | dc: max tensile err | order | dc: jump-off force err | order "
+          "| dc: jump-off displacement err | order | R/Δ (fc) | fc: pull-off err | order |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for k, r in enumerate(rows):
         print(f"| {r[0]}² | {r[1]:.0f} | {r[2]:+.4f} | {o1[k]} | {r[3]:+.4f} | {o2[k]} "
-              f"| {r[4]:.0f} | {r[5]:+.4f} | {o3[k]} |")
+              f"| {r[6]:+.4f} | {o4[k]} | {r[4]:.0f} | {r[5]:+.4f} | {o3[k]} |")
 
 
 def ellipse(cells, ratios):

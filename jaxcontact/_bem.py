@@ -32,8 +32,8 @@ unknown: at a fixed attached set, $d$ solves $F(d) + kd = $ ($F$ or $kz$) by New
 with the exact slope $\partial F/\partial d = E^*\Delta^2\sum_A\mathcal H_A^{-1}1$ (one
 CG on the fixed active set $A$). $F(d)$ is nondecreasing and convex at a fixed attached set
 (pressing deeper raises every pressure of $A$ and only adds cells), so the iteration
-converges monotonically; on a fixed active set $F$ is linear in $d$ and one step is exact
-(typically 2-4 steps). Each round of the cell rule below solves this at the current set;
+converges monotonically in a few steps; on a fixed active set $F$ is linear in $d$ and one
+step is exact. Each round of the cell rule below solves this at the current set;
 under a dead load the cascade that releases every cell is the jump-off (no equilibrium
 remains). Displacement control compiles without this loop. The non-adhesive
 `bem_contact(force=...)` uses the original Polonsky-Keer force-controlled iteration.
@@ -724,7 +724,7 @@ def bem_simulate(
     - `tol`, `max_iter`: CG tolerance (relative change of the pressure) and iteration limit.
     - `max_rounds`: limit of cell-rule rounds per step (default $n^2$).
     - `max_newton`: limit of the Newton steps on the indentation per round (force control
-      and compliant loading; typically 2-4 are taken).
+      and compliant loading; each a constrained solve, a few per round).
     - `refine_steps`: bisection steps (static) that locate the jump-off within the sample
       interval in which the contact vanished (re-solving from the state at the previous
       sample with the linear input); the jump-off quantities are then resolved to

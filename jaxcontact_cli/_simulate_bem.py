@@ -33,7 +33,8 @@ def add_bem_arguments(p) -> None:
     p.add_argument(
         "--method", default="mdr",
         help="mdr (default: the MDR models) or bem (boundary elements on a square grid, "
-             "the paper's cell criterion)",
+             "the paper's cell criterion; every sample is a constrained solve on the grid, so "
+             "give a few hundred --samples)",
     )
     p.add_argument(
         "--grid", default=None,

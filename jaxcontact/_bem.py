@@ -26,6 +26,18 @@ conjugate-gradient method in displacement control (fixed-shape masks in a
 `lax.while_loop`): conjugate directions on the active set, projection onto the bound, and a
 restart of the conjugacy when free cells that penetrate enter the active set.
 
+**Force control and compliant loading.** With a prescribed force $F$ (dead load) or a
+spring $k$ between the drive $z$ and the indenter ($F = k(z - d)$) the indentation is an
+unknown: at a fixed attached set, $d$ solves $F(d) + kd = $ ($F$ or $kz$) by Newton's method
+with the exact slope $\partial F/\partial d = E^*\Delta^2\sum_A\mathcal H_A^{-1}1$ (one
+CG on the fixed active set $A$). $F(d)$ is nondecreasing and convex at a fixed attached set
+(pressing deeper raises every pressure of $A$ and only adds cells), so the iteration
+converges monotonically in a few steps; on a fixed active set $F$ is linear in $d$ and one
+step is exact. Each round of the cell rule below solves this at the current set;
+under a dead load the cascade that releases every cell is the jump-off (no equilibrium
+remains). Displacement control compiles without this loop. The non-adhesive
+`bem_contact(force=...)` uses the original Polonsky-Keer force-controlled iteration.
+
 **Adhesion: the paper's cell rule.** A cell becomes *attached* when it touches (its solved
 pressure is compressive while it is free). An attached cell is bonded until its stress
 reaches $\sigma_c = -\sqrt{E^*_\mathrm{glass}\Delta\gamma/(\chi\Delta)}$
@@ -54,18 +66,21 @@ modulus (only the instant spring's energy is released). Two starts: a virgin hal
 until fully relaxed, the non-adhesive contact with the relaxed modulus $G_\infty$, every
 Kelvin state at $v_k = w/G_k$), as in `retract`.
 
-**Jump-off.** In displacement control the contact jumps off where the whole contact
-detaches in one cascade of the cell rule. The sample interval in which this happens is
-bisected (re-solving from the state at its start with the linear input), so the jump-off
-force, time and displacement are resolved finer than the sampling.
+**Jump-off.** The contact jumps off where the whole contact detaches in one cascade of
+the cell rule. The sample interval in which this happens is bisected (re-solving from the
+state at its start with the linear input), so the jump-off force, time and displacement are
+resolved finer than the sampling. The relaxed start, the samples and the bisection steps
+are the iterations of one `lax.scan`, so the solver is compiled once.
 
-**Accuracy** (elastic sphere, displacement control, `tests/test_bem.py` and
-`benchmarks/bench_bem.py`): the largest tensile force approaches JKR's
-$-\tfrac32\pi\Delta\gamma R$ from above with an error of about first order in $\Delta$
-(+13.6 %, +8.0 %, +3.6 % at $R/\Delta$ = 158, 317, 634, contact radius at pull-off of
-9, 18, 36 cells); the jump-off force approaches $-\tfrac56\pi\Delta\gamma R$ faster
-(+2.1 %, +0.4 %, +0.3 %). The cell criterion is a discrete energy balance, so the error is
-set by the number of cells across the contact at pull-off.
+**Accuracy** (`benchmarks/bench_bem.py`, results in `benchmarks/results_bem.md`). The cell
+criterion is a discrete energy balance, so the error is set by the number of cells across
+the contact at pull-off. For an elastic sphere the largest tensile force (displacement
+control) and the dead-load pull-off (force control) overshoot JKR's
+$-\tfrac32\pi\Delta\gamma R$ with an error of first order in $\Delta$; the jump-off force
+in displacement control is close to $-\tfrac56\pi\Delta\gamma R$ but not monotonic in
+$\Delta$ (it depends on how the last rings of cells fall on the grid). Against the MDR
+models (relaxed start, approach-hold-lift) the force curve, the largest tensile force and
+the jump-off time converge at first order as well.
 
 **Derivatives.** The solvers are `lax.while_loop`s: forward-mode differentiation
 (`jax.jvp`, `jax.jacfwd`) works through them (the derivative of the converged,
@@ -88,7 +103,7 @@ from ._criteria import BEM_CHI
 from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
 from ._solution import RESULTS
-from ._solvers import as_float
+from ._solvers import as_float, floats_to_arrays, safe_div
 from ._validate import check_finite, check_positive, check_times, is_concrete
 
 __all__ = [
@@ -121,7 +136,8 @@ class BEMGrid(eqx.Module):
     """
 
     cells: int = eqx.field(static=True)
-    extent: Float[ArrayLike, ""]
+    # an array (never a Python float): compiled programs are shared by all extents
+    extent: Float[Array, ""] = eqx.field(converter=lambda x: floats_to_arrays(as_float(x)))
 
     def __check_init__(self):
         if int(self.cells) < 2:
@@ -131,7 +147,7 @@ class BEMGrid(eqx.Module):
     @property
     def cell_size(self) -> Array:
         r"""Cell side $\Delta = L/n$ [m]."""
-        return as_float(self.extent) / self.cells
+        return self.extent / self.cells
 
     def coordinates(self) -> tuple[Array, Array]:
         """Cell-centre coordinates `(x, y)` [m], each of shape `(n, n)` (`x` along axis 0)."""
@@ -201,14 +217,19 @@ def _convolve(khat: Array, q: Array) -> Array:
 # --------------------------------------------------------------------------------------
 
 
-def _pk_solve(khat, target, attached, q0, k00, tol, max_iter):
-    r"""Polonsky-Keer CG, displacement control: $g = \mathcal H q - t$; bonded on `attached`
-    (no bound), $q \ge 0$ elsewhere. Returns `(q, Hq, iterations, converged)`."""
+def _pk_solve(khat, target, bonded, q0, k00, tol, max_iter, frozen=None):
+    r"""Polonsky-Keer CG, displacement control: gap $g = \mathcal H q - t$ with `t` the
+    `target`; `bonded` cells carry any $q$ ($g = 0$), `frozen` cells (optional) are held at
+    $q = 0$, and $q \ge 0$ on the other (free) cells. With every cell bonded or frozen this
+    is a plain CG on the bonded set. Returns `(q, Hq, iterations, converged)`."""
     dtype = target.dtype
-    q = jnp.where(attached, q0, jnp.maximum(q0, 0.0))
+    free = ~bonded if frozen is None else ~bonded & ~frozen
+    q = jnp.where(bonded, q0, jnp.maximum(q0, 0.0))
+    if frozen is not None:
+        q = jnp.where(frozen, 0.0, q)
     g = _convolve(khat, q) - target
     # seed penetrating free cells so that the active set is never empty when it must not be
-    seed = (~attached) & (q <= 0) & (g < 0)
+    seed = free & (q <= 0) & (g < 0)
     q = jnp.where(seed, -g / k00, q)
 
     def cond(c):
@@ -217,17 +238,16 @@ def _pk_solve(khat, target, attached, q0, k00, tol, max_iter):
     def body(c):
         q, hq, t_dir, g_old, delta, it, _ = c
         g = hq - target
-        act = attached | (q > 0)
+        act = bonded | (q > 0)
         gg = jnp.sum(jnp.where(act, g * g, 0.0))
-        ratio = jnp.where(g_old > 0, gg / jnp.where(g_old > 0, g_old, 1.0), 0.0)
-        t_dir = jnp.where(act, g + delta * ratio * t_dir, 0.0)
+        t_dir = jnp.where(act, g + delta * safe_div(gg, g_old) * t_dir, 0.0)
         r = _convolve(khat, t_dir)
         num = jnp.sum(jnp.where(act, g * t_dir, 0.0))
         den = jnp.sum(jnp.where(act, r * t_dir, 0.0))
-        tau = jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 0.0)
+        tau = safe_div(num, jnp.where(den > 0, den, 0.0))
         q_lin = q - tau * t_dir
-        q_new = jnp.where(attached, q_lin, jnp.maximum(q_lin, 0.0))
-        nol = (~attached) & (q_new <= 0) & (g < 0)
+        q_new = jnp.where(bonded, q_lin, jnp.maximum(q_lin, 0.0))
+        nol = free & (q_new <= 0) & (g < 0)
         any_nol = jnp.any(nol)
         q_new = jnp.where(nol, q_new - tau * g, q_new)
         # H q is updated linearly (H q - tau r); one more convolution only when the
@@ -235,8 +255,8 @@ def _pk_solve(khat, target, attached, q0, k00, tol, max_iter):
         fix = q_new - q_lin
         hq = jax.lax.cond(jnp.any(fix != 0), lambda: hq - tau * r + _convolve(khat, fix),
                           lambda: hq - tau * r)
-        scale = jnp.sum(jnp.abs(q_new))
-        err = jnp.sum(jnp.abs(q_new - q)) / jnp.where(scale > 0, scale, 1.0)
+        change = jnp.sum(jnp.abs(q_new - q))
+        err = safe_div(change, jnp.sum(jnp.abs(q_new)), change)
         err = jnp.where(any_nol, jnp.maximum(err, 2 * tol), err)
         delta = jnp.where(any_nol, 0.0, 1.0).astype(dtype)
         return q_new, hq, t_dir, gg, delta, it + 1, err
@@ -255,8 +275,7 @@ def _pk_force(khat, h, total, tol, max_iter):
     q = jnp.full(h.shape, total / h.size, dtype)
 
     def mean_on(x, act):
-        cnt = jnp.sum(act)
-        return jnp.sum(jnp.where(act, x, 0.0)) / jnp.where(cnt > 0, cnt, 1)
+        return safe_div(jnp.sum(jnp.where(act, x, 0.0)), jnp.sum(act))
 
     def cond(c):
         return (c[5] < max_iter) & (c[6] > tol)
@@ -267,13 +286,12 @@ def _pk_force(khat, h, total, tol, max_iter):
         g = hq + h
         g = g - mean_on(g, act)
         gg = jnp.sum(jnp.where(act, g * g, 0.0))
-        ratio = jnp.where(g_old > 0, gg / jnp.where(g_old > 0, g_old, 1.0), 0.0)
-        t_dir = jnp.where(act, g + delta * ratio * t_dir, 0.0)
+        t_dir = jnp.where(act, g + delta * safe_div(gg, g_old) * t_dir, 0.0)
         r_raw = _convolve(khat, t_dir)
         r = r_raw - mean_on(r_raw, act)
         num = jnp.sum(jnp.where(act, g * t_dir, 0.0))
         den = jnp.sum(jnp.where(act, r * t_dir, 0.0))
-        tau = jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 0.0)
+        tau = safe_div(num, jnp.where(den > 0, den, 0.0))
         q_lin = q - tau * t_dir
         q_new = jnp.maximum(q_lin, 0.0)
         nol = (q_new <= 0) & (g < 0)
@@ -297,44 +315,125 @@ def _pk_force(khat, h, total, tol, max_iter):
     return q, depth, err <= tol
 
 
-class _Step(eqx.Module):
+class _Load(eqx.Module):
+    """What fixes the indenter at one load step (dimensionless q-units, see `_equilibrium`).
+
+    `fixed`: displacement control (the indentation is `depth`); otherwise the indentation
+    solves $\\sum q + k d = $ `load` (force control: `spring` $k = 0$; compliant loading:
+    $k > 0$ and `load` $= k z$)."""
+
+    fixed: Array
+    depth: Array
+    load: Array
+    spring: Array
+
+
+class _Equilibrium(eqx.Module):
     q: Array
     hq: Array
-    attached: Array
+    depth: Array
+    slope: Array  # H_A s = k00 on the active set: dq/dd = s / k00
     cg_iterations: Array
+    converged: Array
+    exists: Array  # False: a tensile dead load and nothing in contact
+
+
+def _equilibrium(khat, base, bonded, q0, s0, k00, load: _Load, tol, max_iter, max_newton):
+    r"""Equilibrium at a fixed bonded set: $q$ = `_pk_solve` at the target $d - $ `base`.
+
+    In displacement control $d$ is given. Otherwise $d$ solves $F(d) + k d = $ `load` with
+    $F = \sum q$: at a fixed bonded set $F(d)$ is nondecreasing and convex (pressing deeper
+    raises every pressure of the active set $A$, $\partial q/\partial d = \mathcal H_A^{-1}1
+    > 0$, and only adds cells), so Newton's method with the exact slope
+    $\sum_A \mathcal H_A^{-1} 1$ (one CG on the fixed set $A$) converges monotonically from
+    the right and overshoots at most once from the left; on a fixed active set the force
+    is linear in $d$ and the step is exact. Without any active cell and $k = 0$ the
+    indenter is moved to first touch (then one cell's compliance `k00`, an overshoot);
+    a tensile dead load then has no equilibrium (`exists` False). `max_newton = 0`
+    (static) compiles displacement control alone.
+    """
+    if max_newton == 0:  # displacement control only (static): one solve
+        q, hq, it, ok = _pk_solve(khat, load.depth - base, bonded, q0, k00, tol, max_iter)
+        return _Equilibrium(q, hq, load.depth, s0, it, ok, jnp.asarray(True))
+    d_touch = jnp.min(base)
+
+    def cond(c):
+        return ~c[8] & (c[9] < max_newton)
+
+    def body(c):
+        d_next, q_start, s, _, _, _, its, ok, _, k = c
+        q, hq, it, conv = _pk_solve(khat, d_next - base, bonded, q_start, k00, tol, max_iter)
+        force = jnp.sum(q)
+        res = load.load - force - load.spring * d_next
+        scale = jnp.sum(jnp.abs(q)) + jnp.abs(load.load) + load.spring * jnp.abs(d_next)
+        act = bonded | (q > 0)
+        empty = ~jnp.any(act)
+        no_eq = empty & (load.spring == 0) & (load.load < 0)
+        done = load.fixed | (jnp.abs(res) <= 1e2 * tol * scale) | no_eq
+
+        def slope():
+            s1, _, it1, ok1 = _pk_solve(khat, jnp.full_like(base, k00), act,
+                                        jnp.where(act, s, 0.0), k00, tol, max_iter,
+                                        frozen=~act)
+            return s1, it1, ok1
+
+        s, it_s, ok_s = jax.lax.cond(done, lambda: (s, 0, jnp.asarray(True)), slope)
+        stiffness = jnp.sum(s) / k00 + load.spring
+        first_touch = jnp.where(load.load > 0, d_touch + load.load * k00, d_touch)
+        d_new = jnp.where(stiffness > 0, d_next + safe_div(res, stiffness), first_touch)
+        q_new = jnp.where(act, q + (d_new - d_next) * s / k00, q)
+        return (jnp.where(done, d_next, d_new), jnp.where(done, q, q_new), s, q, hq, no_eq,
+                its + it + it_s, ok & conv & ok_s, done, k + 1)
+
+    init = (load.depth, q0, s0, q0, q0, jnp.asarray(False), 0, jnp.asarray(True),
+            jnp.asarray(False), 0)
+    d, _, s, q, hq, no_eq, its, ok, done, _ = jax.lax.while_loop(cond, body, init)
+    return _Equilibrium(q, hq, d, s, its, ok & done, ~no_eq)
+
+
+class _Step(eqx.Module):
+    eq: _Equilibrium
+    attached: Array
     rounds: Array
     converged: Array
 
 
-def _consistent(khat, target, attached, q0, k00, q_crit, adhesive, tol, max_iter, max_rounds):
+def _consistent(khat, base, attached, q0, s0, k00, q_crit, adhesive, load, tol, max_iter,
+                max_rounds, max_newton):
     """Iterate the cell rule to a consistent attached set at one load step.
 
     `q_crit` is the critical stress over the step's effective modulus (stress rule
     p < sigma_c  <=>  q < q_crit). Non-adhesive (`adhesive=False`): no cell is ever attached.
     """
     if not adhesive:
-        q, hq, it, ok = _pk_solve(khat, target, attached, q0, k00, tol, max_iter)
-        return _Step(q, hq, jnp.zeros_like(attached), it, jnp.asarray(1), ok)
+        no = jnp.zeros_like(attached)
+        eq = _equilibrium(khat, base, no, q0, s0, k00, load, tol, max_iter, max_newton)
+        return _Step(eq, no, jnp.asarray(1), eq.converged)
 
     def cond(c):
-        _, _, _, _, rounds, _, changed = c
-        return changed & (rounds < max_rounds)
+        return c[3] & (c[2] < max_rounds)
 
     def body(c):
-        q, _, att, its, rounds, ok, _ = c
-        q, hq, it, conv = _pk_solve(khat, target, att, q, k00, tol, max_iter)
-        release = att & (q < q_crit)
-        touch = (~att) & (q > 0)
+        eq, att, rounds, _ = c
+        eq = _equilibrium(khat, base, att, eq.q, eq.slope, k00,
+                          eqx.tree_at(lambda x: x.depth, load, eq.depth), tol, max_iter,
+                          max_newton)
+        release = att & (eq.q < q_crit)
+        touch = (~att) & (eq.q > 0)
         new = (att & ~release) | touch
-        q = jnp.where(release, 0.0, q)
         changed = jnp.any(new != att)
-        return q, hq, new, its + it, rounds + 1, ok & conv, changed
+        eq = eqx.tree_at(lambda x: (x.q, x.cg_iterations, x.converged), eq,
+                         (jnp.where(release, 0.0, eq.q), c[0].cg_iterations + eq.cg_iterations,
+                          c[0].converged & eq.converged))
+        return eq, new, rounds + 1, changed
 
     z = jnp.zeros_like(q0)
-    init = (q0, z, attached, 0, 0, jnp.asarray(True), jnp.asarray(True))
-    q, hq, att, its, rounds, ok, changed = jax.lax.while_loop(cond, body, init)
+    init = _Equilibrium(q0, z, load.depth, s0, jnp.asarray(0), jnp.asarray(True),
+                        jnp.asarray(True))
+    eq, att, rounds, changed = jax.lax.while_loop(
+        cond, body, (init, attached, jnp.asarray(0), jnp.asarray(True)))
     # the last solve used `att` before the update; if nothing changed it is consistent
-    return _Step(q, hq, att, its, rounds, ok & ~changed)
+    return _Step(eq, att, rounds, eq.converged & ~changed)
 
 
 # --------------------------------------------------------------------------------------
@@ -485,9 +584,9 @@ def bem_contact(
     else:
         check_positive("force", force, "N")
     h = _heights(indenter, grid)
-    out = _bem_contact(h, None if depth is None else as_float(depth),
-                       None if force is None else as_float(force), grid,
-                       as_float(effective_modulus), tol, max_iter)
+    out = _bem_contact(*floats_to_arrays((h, None if depth is None else as_float(depth),
+                                          None if force is None else as_float(force), grid,
+                                          as_float(effective_modulus))), tol, max_iter)
     if throw:
         out = eqx.error_if(out, ~out[3], "BEM: the constrained CG did not converge (raise "
                            "`max_iter` or `tol`).")
@@ -521,22 +620,29 @@ class BEMSolution(eqx.Module):
 
     **Fields:**
 
-    - `ts`, `displacement`: the input [s], [m].
-    - `force`: normal force $F = \\Delta^2\\sum p$ [N].
+    - `ts`: the sample times [s].
+    - `displacement`: the indentation $d$ [m] at `ts` (the input in displacement control;
+      solved in force control and with a compliant loading system). `nan` where a
+      prescribed tensile force has no equilibrium (force control after the jump-off).
+    - `force`: normal force $F = \\Delta^2\\sum p$ [N] carried by the contact (in force
+      control the input while in contact, 0 after the jump-off).
     - `contact_area`: $\\Delta^2$ times the number of cells in contact [m²].
     - `contact_radius`: equivalent radius $\\sqrt{A/\\pi}$ [m].
-    - `max_tensile_force`: the most negative sampled force [N].
-    - `jumpoff_time`, `jumpoff_displacement`: time [s] and indentation [m] at which the
-      contact vanished (a detachment cascade through the whole contact), located by
-      bisection within the sample interval (`refine_steps`); `nan` if it did not.
-    - `jumpoff_force`, `jumpoff_radius`: force [N] and equivalent radius [m] of the last
-      equilibrium still in contact found by the bisection; `nan` if no jump-off.
-    - `result`: `RESULTS.detached`, `RESULTS.in_contact` or `RESULTS.solver_failed`.
+    - `max_tensile_force`: the most negative force [N] of the samples and of the last
+      equilibrium before the jump-off.
+    - `jumpoff_time`, `jumpoff_displacement`, `jumpoff_force`, `jumpoff_radius`: time [s],
+      indentation [m], force [N] and equivalent radius [m] of the last equilibrium still in
+      contact before the first jump-off (the whole contact detaching in one cascade of the
+      cell rule), located by bisection of the input within the sample interval
+      (`refine_steps`); `nan` if the contact did not jump off.
+    - `result`: `RESULTS.detached` (a jump-off happened), `RESULTS.in_contact` or
+      `RESULTS.solver_failed`.
     - `pressure`: cell pressures [Pa], shape `(m, n, n)`, if `save_fields=True`, else None.
-    - `attached`: attached (bonded) cells, boolean `(m, n, n)`, if `save_fields`, else None.
+    - `attached`: cells in contact (bonded cells with adhesion), boolean `(m, n, n)`, if
+      `save_fields`, else None.
     - `stats`: `cg_iterations` and `rounds` (cell-rule iterations) per sample;
       `touches_edge`: whether the contact reached the outermost cells of the grid (the
-      grid is then too small; an error with `throw=True`).
+      grid is then too small; an error with `throw=True`); `drive`: the input history.
     """
 
     ts: Float[Array, " m"]
@@ -556,7 +662,7 @@ class BEMSolution(eqx.Module):
 
     @property
     def detached(self) -> Array:
-        """Boolean: whether the contact detached within `ts`."""
+        """Boolean: whether the contact jumped off within `ts`."""
         return self.result == RESULTS.detached
 
 
@@ -565,22 +671,33 @@ def bem_simulate(
     indenter,
     work_of_adhesion: Float[ArrayLike, ""],
     ts: Float[ArrayLike, " m"],
-    displacement: Float[ArrayLike, " m"],
+    displacement: Float[ArrayLike, " m"] | None = None,
     *,
     grid: BEMGrid,
+    force: Float[ArrayLike, " m"] | None = None,
+    stiffness: Float[ArrayLike, ""] | None = None,
     relaxed_depth: Float[ArrayLike, ""] | None = None,
     save_fields: bool = False,
     tol: float = 1e-9,
     max_iter: int = 1000,
     max_rounds: int | None = None,
+    max_newton: int = 50,
     refine_steps: int = 12,
     throw: bool = True,
 ) -> BEMSolution:
     r"""Adhesive contact of a rigid indenter and a viscoelastic half-space by BEM.
 
-    Displacement control: the indentation $d(t)$ is given at `ts` and is linear in between;
-    every sample is one load step (exact creep update, one constrained-CG solve per round of
-    the cell rule; see the module docstring).
+    The input is given at `ts` and is linear in between; every sample is one load step
+    (exact creep update; the cell rule iterated to a consistent attached set, one
+    constrained-CG solve per round; see the module docstring). Three loading systems:
+
+    - displacement control (`displacement` alone): the indentation $d(t)$ is prescribed;
+    - force control (`force` instead of `displacement`): a dead load $F(t)$; the contact
+      jumps off where no equilibrium connected to the current one carries the load (for
+      an elastic sphere at $-\tfrac32\pi\Delta\gamma R$);
+    - compliant loading (`displacement` with `stiffness` $k$): a spring between the drive
+      and the indenter (an AFM cantilever); `displacement` is then the drive position
+      $z(t)$ (zero where the undeflected indenter touches) and $k(z - d) = F$.
 
     **Arguments:**
 
@@ -592,16 +709,22 @@ def bem_simulate(
       `self_affine_heights`).
     - `work_of_adhesion`: $\Delta\gamma$ [J/m²], >= 0 (0: non-adhesive).
     - `ts`: sample times [s], shape `(m,)`, non-decreasing.
-    - `displacement`: indentation $d(t_i)$ [m] at `ts`: of the apex $f(0) = 0$ for a
-      profile (as in `simulate`), of the lowest cell for a height map.
+    - `displacement`: the indentation $d(t_i)$ [m] at `ts` (of the apex $f(0) = 0$ for a
+      profile, as in `simulate`; of the lowest cell for a height map), or the drive
+      position $z(t_i)$ [m] with `stiffness`.
     - `grid`: a `BEMGrid`; it must hold the whole contact.
+    - `force`: instead of `displacement`, the applied force $F(t_i)$ [N] (compressive
+      positive) at `ts`, shape `(m,)`: force control.
+    - `stiffness`: $k$ [N/m], > 0, of a compliant loading system (with `displacement`).
     - `relaxed_depth`: if given, the half-space starts fully relaxed under the indenter held
       at this depth $d_0$ [m] (> 0) without adhesion (as `retract`), and the history
-      continues from $d_0$ at `ts[0]`; if None (default) it starts virgin and
-      `displacement[0]` is applied instantly at `ts[0]`.
-    - `save_fields`: also return the pressure and attached-cell fields per sample.
+      continues from $d_0$ at `ts[0]`; if None (default) it starts virgin and the first
+      input is applied instantly at `ts[0]`.
+    - `save_fields`: also return the pressure and contact fields per sample.
     - `tol`, `max_iter`: CG tolerance (relative change of the pressure) and iteration limit.
     - `max_rounds`: limit of cell-rule rounds per step (default $n^2$).
+    - `max_newton`: limit of the Newton steps on the indentation per round (force control
+      and compliant loading; each a constrained solve, a few per round).
     - `refine_steps`: bisection steps (static) that locate the jump-off within the sample
       interval in which the contact vanished (re-solving from the state at the previous
       sample with the linear input); the jump-off quantities are then resolved to
@@ -613,34 +736,53 @@ def bem_simulate(
     """
     if not isinstance(grid, BEMGrid):
         raise TypeError(f"`grid` must be a BEMGrid; got {type(grid).__name__}.")
+    if not isinstance(rheology, AbstractRheology):
+        raise TypeError(f"`rheology` must be an AbstractRheology; got {type(rheology).__name__}.")
     check_positive("work_of_adhesion", work_of_adhesion, "J/m^2", allow_zero=True)
     check_times(ts)
     ts = as_float(ts)
-    disp = as_float(displacement)
-    if disp.shape != ts.shape:
-        raise ValueError(
-            f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {disp.shape}."
-        )
-    check_finite("displacement", disp, "m")
+    if (displacement is None) == (force is None):
+        raise ValueError("Give exactly one of `displacement` [m] and `force` [N] (the input "
+                         "history at `ts`).")
+    if force is not None and stiffness is not None:
+        raise ValueError("`stiffness` [N/m] goes with `displacement` (the drive position of "
+                         "a compliant loading system), not with `force`.")
+    name, unit = ("displacement", "m") if force is None else ("force", "N")
+    inputs = as_float(displacement if force is None else force)
+    if inputs.shape != ts.shape:
+        raise ValueError(f"`{name}` [{unit}] must have the shape of `ts` {ts.shape}; got "
+                         f"{inputs.shape}.")
+    check_finite(name, inputs, unit)
+    if stiffness is not None:
+        check_positive("stiffness", stiffness, "N/m")
     if relaxed_depth is not None:
         check_positive("relaxed_depth", relaxed_depth, "m")
-        relaxed_depth = as_float(relaxed_depth)
     h = _heights(indenter, grid)
     adhesive = True
     if is_concrete(work_of_adhesion):
         adhesive = bool(np.asarray(work_of_adhesion) > 0)
-    if not isinstance(rheology, AbstractRheology):
-        raise TypeError(f"`rheology` must be an AbstractRheology; got {type(rheology).__name__}.")
     chain = rheology.to_creep_chain()
     rounds = grid.cells * grid.cells if max_rounds is None else int(max_rounds)
-    sol = _bem_simulate(chain, h, as_float(work_of_adhesion), ts, disp, grid, relaxed_depth,
-                        save_fields, tol, max_iter, rounds, adhesive, int(refine_steps))
+    dtype = ts.dtype
+    # the start and the spring are traced values (one compiled program serves a relaxed and a
+    # virgin start); displacement control compiles without the Newton loop on the depth
+    dynamic = floats_to_arrays((
+        chain, h, as_float(work_of_adhesion).astype(dtype), ts, inputs, grid,
+        jnp.asarray(relaxed_depth is not None),
+        as_float(0.0 if relaxed_depth is None else relaxed_depth).astype(dtype),
+        jnp.asarray(force is None and stiffness is None),
+        as_float(0.0 if stiffness is None else stiffness).astype(dtype),
+    ))
+    sol = _bem_simulate(
+        *dynamic, save_fields, tol, int(max_iter), rounds,
+        0 if force is None and stiffness is None else max(int(max_newton), 1), adhesive,
+        int(refine_steps))
     if throw:
         sol = eqx.error_if(
             sol,
             sol.result == RESULTS.solver_failed,
             "BEM: a constrained-CG solve or the cell rule did not converge (raise `max_iter`, "
-            "`max_rounds` or `tol`).",
+            "`max_rounds`, `max_newton` or `tol`).",
         )
         sol = eqx.error_if(
             sol,
@@ -650,121 +792,154 @@ def bem_simulate(
     return sol
 
 
-class _Carry(eqx.Module):
-    p: Array
-    attached: Array
-    v: Array
-    w: Array
+class _State(eqx.Module):
+    p: Array  # cell pressures [Pa]
+    attached: Array  # bonded cells
+    v: Array  # Kelvin states, (nk, n, n)
+    w: Array  # displacement of a unit-modulus half-space, H p
+    slope: Array  # warm start of the slope solve
     t: Array
-    d: Array
-    ok: Array
+    d: Array  # indentation [m]
+    x: Array  # the input at t
     touching: Array
 
 
+class _Carry(eqx.Module):
+    state: _State
+    pre: _State  # the state at the start of the step in which the contact first vanished
+    t_end: Array  # ... and the end of that step's input
+    x_end: Array
+    found: Array
+    lo: Array  # bisection: fractions of that step with and without contact
+    hi: Array
+    jump: Array  # (t, d, F, A) of the last equilibrium in contact
+    ok: Array
+
+
+def _tree_where(c, a, b):
+    return jax.tree_util.tree_map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
 @eqx.filter_jit
-def _bem_simulate(chain, h, dgamma, ts, disp, grid, relaxed_depth, save_fields, tol, max_iter,
-                  max_rounds, adhesive, refine_steps):
-    n = grid.cells
+def _bem_simulate(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_control, spring,
+                  save_fields, tol, max_iter, max_rounds, max_newton, adhesive, refine_steps):
+    r"""One `lax.scan` over the prelude (the relaxed start, or nothing), the samples and the
+    bisection steps of the jump-off: the solver appears once in the compiled program."""
+    n, m = grid.cells, ts.shape[0]
     delta = grid.cell_size
     khat = _kernel_hat(n, delta)
     k00 = love_displacement(0.0, 0.0, 0.5 * delta, 0.5 * delta)
     G0, Gk, eta = chain.G0, chain.G, chain.eta
     theta = eta / Gk
     sigma_c = -jnp.sqrt(4 * G0 * dgamma / (BEM_CHI * delta))
-    nk = Gk.shape[0]
-    zeros = jnp.zeros((n, n), h.dtype)
+    dtype = h.dtype
+    zeros = jnp.zeros((n, n), dtype)
+    scalar = jnp.zeros((), dtype)
+    state0 = _State(zeros, jnp.zeros((n, n), bool), jnp.zeros((Gk.shape[0], n, n), dtype),
+                    zeros, zeros, ts[0], scalar, scalar, jnp.asarray(False))
 
-    if relaxed_depth is None:
-        carry = _Carry(zeros, jnp.zeros((n, n), bool), jnp.zeros((nk, n, n), h.dtype), zeros,
-                       ts[0], jnp.zeros((), h.dtype), jnp.asarray(True), jnp.asarray(False))
-    else:
-        c_inf = 1.0 / G0 + jnp.sum(1.0 / Gk)
-        q, hq, _, ok = _pk_solve(khat, relaxed_depth - h, jnp.zeros((n, n), bool), zeros, k00,
-                                 tol, max_iter)
-        w = (4.0 / c_inf) * hq  # unit-modulus displacement H p of the relaxed pressure
-        v = w[None, :, :] / Gk[:, None, None]
-        carry = _Carry(q * (4.0 / c_inf), q > 0, v, w, ts[0], relaxed_depth, ok,
-                       jnp.any(q > 0))
-
-    def advance(c: _Carry, t1, d1):
-        dt = t1 - c.t
+    def advance(st: _State, t1, dt, x1, fixed):
         e = jnp.exp(-dt / theta)
-        phi = jnp.where(dt > 0, theta * (-jnp.expm1(-dt / theta)) / jnp.where(dt > 0, dt, 1.0),
-                        1.0)
+        phi = safe_div(theta * (-jnp.expm1(-dt / theta)), dt, 1.0)
         compliance = 1.0 / G0 + jnp.sum((1.0 - phi) / Gk)
-        b = jnp.sum(e[:, None, None] * c.v
-                    + ((phi - e) / Gk)[:, None, None] * c.w[None, :, :], axis=0)
+        b = jnp.sum(e[:, None, None] * st.v
+                    + ((phi - e) / Gk)[:, None, None] * st.w[None, :, :], axis=0)
         modulus = 4.0 / compliance
-        target = d1 - h - 0.25 * b
+        unit = modulus * delta * delta  # F = unit * sum(q)
+        load = _Load(fixed=fixed, depth=jnp.where(fixed, x1, st.d),
+                     load=jnp.where(spring > 0, spring * x1, x1) / unit, spring=spring / unit)
         # warm start: the previous pressure at this step's modulus
-        step = _consistent(khat, target, c.attached, c.p / modulus, k00,
-                           sigma_c / modulus, adhesive, tol, max_iter, max_rounds)
-        p = modulus * step.q
-        w1 = modulus * step.hq
-        v1 = (e[:, None, None] * c.v
+        step = _consistent(khat, h + 0.25 * b, st.attached, st.p / modulus, st.slope, k00,
+                           sigma_c / modulus, adhesive, load, tol, max_iter, max_rounds,
+                           max_newton)
+        eq = step.eq
+        p = modulus * eq.q
+        w1 = modulus * eq.hq
+        v1 = (e[:, None, None] * st.v
               + ((1.0 - phi) / Gk)[:, None, None] * w1[None, :, :]
-              + ((phi - e) / Gk)[:, None, None] * c.w[None, :, :])
-        contact = step.attached | (step.q > 0)
+              + ((phi - e) / Gk)[:, None, None] * st.w[None, :, :])
+        contact = step.attached | (eq.q > 0)
         area = jnp.sum(contact) * delta * delta
         edge = (jnp.any(contact[0]) | jnp.any(contact[-1]) | jnp.any(contact[:, 0])
                 | jnp.any(contact[:, -1]))
-        new = _Carry(p, step.attached, v1, w1, t1, d1, c.ok & step.converged, area > 0)
-        return new, step, contact, jnp.sum(p) * delta * delta, area, edge
-
-    def refine(c: _Carry, t1, d1):
-        # the contact vanished within (c.t, t1]: bisect the (linear) input from the state
-        # at c.t; keep the last equilibrium still in contact
-        def bisect(k, lohi):
-            lo, hi, f, a = lohi
-            mid = 0.5 * (lo + hi)
-            _, _, _, fm, am, _ = advance(c, c.t + mid * (t1 - c.t), c.d + mid * (d1 - c.d))
-            keep = am > 0
-            return (jnp.where(keep, mid, lo), jnp.where(keep, hi, mid),
-                    jnp.where(keep, fm, f), jnp.where(keep, am, a))
-
-        f0 = c.p.sum() * delta * delta
-        a0 = jnp.sum(c.attached | (c.p > 0)) * delta * delta
-        lo, hi, f, a = jax.lax.fori_loop(0, refine_steps, bisect,
-                                         (jnp.zeros_like(t1), jnp.ones_like(t1), f0, a0))
-        return c.t + hi * (t1 - c.t), c.d + hi * (d1 - c.d), f, jnp.sqrt(a / jnp.pi)
-
-    def body(c: _Carry, inp):
-        t1, d1 = inp
-        new, step, contact, force, area, edge = advance(c, t1, d1)
-        lost = c.touching & ~new.touching
-        nan = jnp.full((), jnp.nan, force.dtype)
-        jump = jax.lax.cond(lost, refine, lambda *_: (nan, nan, nan, nan), c, t1, d1)
-        out = dict(force=force, area=area, its=step.cg_iterations, rounds=step.rounds,
-                   ok=step.converged, lost=lost, jump=jump, edge=edge)
-        if save_fields:
-            out["p"] = new.p
-            out["att"] = contact if not adhesive else step.attached
+        new = _State(p, step.attached, v1, w1, eq.slope, t1, eq.depth, x1, area > 0)
+        out = dict(force=jnp.sum(p) * delta * delta, area=area, edge=edge,
+                   d=jnp.where(eq.exists, eq.depth, jnp.nan), its=eq.cg_iterations,
+                   rounds=step.rounds, ok=step.converged, contact=contact)
         return new, out
 
-    final, out = jax.lax.scan(body, carry, (ts, disp))
+    def skip(st: _State, t1, dt, x1, fixed):
+        return st, dict(force=scalar, area=scalar, edge=jnp.asarray(False), d=scalar,
+                        its=jnp.asarray(0), rounds=jnp.asarray(0), ok=jnp.asarray(True),
+                        contact=jnp.zeros((n, n), bool))
+
+    def body(c: _Carry, j):
+        prelude = j == 0
+        refining = j > m
+        i = jnp.clip(j - 1, 0, m - 1)
+        start = _tree_where(refining, c.pre, c.state)
+        mid = 0.5 * (c.lo + c.hi)
+        t_ref = c.pre.t + mid * (c.t_end - c.pre.t)
+        x_ref = c.pre.x + mid * (c.x_end - c.pre.x)
+        # prelude: relax at the depth d0 (an infinite step), or nothing (a depth below touch)
+        t1 = jnp.where(prelude, ts[0], jnp.where(refining, t_ref, ts[i]))
+        x1 = jnp.where(prelude, jnp.where(relaxed, d0, -grid.extent),
+                       jnp.where(refining, x_ref, inputs[i]))
+        dt = jnp.where(prelude, jnp.where(relaxed, jnp.inf, 0.0), t1 - start.t)
+        fixed = prelude | displacement_control
+        idle = refining & ~c.found
+        new, out = jax.lax.cond(idle, skip, advance, start, t1, dt, x1, fixed)
+        sample = ~prelude & ~refining
+        lost = sample & c.state.touching & ~new.touching & ~c.found
+        st = c.state
+        here = jnp.stack([st.t, st.d, jnp.sum(st.p) * delta * delta,
+                          jnp.sum(st.attached | (st.p > 0)) * delta * delta])
+        keep = refining & new.touching
+        jump = jnp.where(lost, here, jnp.where(keep, jnp.stack(
+            [t1, new.d, out["force"], out["area"]]), c.jump))
+        carry = _Carry(
+            state=_tree_where(refining, c.state, new),
+            pre=_tree_where(lost, c.state, c.pre),
+            t_end=jnp.where(lost, t1, c.t_end),
+            x_end=jnp.where(lost, x1, c.x_end),
+            found=c.found | lost,
+            lo=jnp.where(keep, mid, c.lo),
+            hi=jnp.where(refining & ~new.touching, mid, c.hi),
+            jump=jump,
+            ok=c.ok & out["ok"],
+        )
+        ys = dict(force=out["force"], area=out["area"], d=out["d"], its=out["its"],
+                  rounds=out["rounds"], edge=out["edge"] & ~refining)
+        if save_fields:
+            ys["p"] = new.p
+            ys["contact"] = out["contact"]
+        return carry, ys
+
+    nan = jnp.full((), jnp.nan, dtype)
+    init = _Carry(state0, state0, scalar, scalar, jnp.asarray(False), scalar,
+                  jnp.ones((), dtype), jnp.full((4,), jnp.nan, dtype), jnp.asarray(True))
+    final, out = jax.lax.scan(body, init, jnp.arange(1 + m + refine_steps))
+    touches_edge = jnp.any(out["edge"])  # the prelude included
+    out = jax.tree_util.tree_map(lambda y: y[1:1 + m], out)
     force, area = out["force"], out["area"]
-    radius = jnp.sqrt(area / jnp.pi)
-    lost = out["lost"]
-    has = jnp.any(lost)
-    i = jnp.argmax(lost)
-    nan = jnp.asarray(jnp.nan, force.dtype)
-    jt, jd, jf, ja = (jnp.where(has, x[i], nan) for x in out["jump"])
-    result = RESULTS.where(has, RESULTS.detached, RESULTS.in_contact)
-    result = RESULTS.where(jnp.all(out["ok"]) & final.ok, result, RESULTS.solver_failed)
+    jt, jd, jf, ja = (jnp.where(final.found, final.jump[k], nan) for k in range(4))
+    result = RESULTS.where(final.found, RESULTS.detached, RESULTS.in_contact)
+    result = RESULTS.where(final.ok, result, RESULTS.solver_failed)
     return BEMSolution(
         ts=ts,
-        displacement=disp,
+        displacement=jnp.where(displacement_control, inputs, out["d"]),
         force=force,
         contact_area=area,
-        contact_radius=radius,
-        max_tensile_force=jnp.min(force),
+        contact_radius=jnp.sqrt(area / jnp.pi),
+        max_tensile_force=jnp.where(final.found, jnp.minimum(jnp.min(force), jf),
+                                    jnp.min(force)),
         jumpoff_time=jt,
         jumpoff_force=jf,
-        jumpoff_radius=ja,
+        jumpoff_radius=jnp.sqrt(ja / jnp.pi),
         jumpoff_displacement=jd,
         result=result,
         pressure=out.get("p"),
-        attached=out.get("att"),
+        attached=out.get("contact"),
         stats=dict(cg_iterations=out["its"], rounds=out["rounds"],
-                   touches_edge=jnp.any(out["edge"])),
+                   touches_edge=touches_edge, drive=inputs),
     )

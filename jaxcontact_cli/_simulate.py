@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from ._common import UsageError, atomic_write_text, check_number, check_output_file
+from ._simulate_bem import add_bem_arguments, check_bem_args, check_bem_extent, simulate_bem
 
 __all__ = ["add_parser", "run"]
 
@@ -22,10 +23,14 @@ def add_parser(sub, common) -> None:
             "starts from a fully relaxed contact at --depth (relaxed-start model, time 0 = start "
             "of the lift). With --hold the whole test is simulated on the discretised MDR "
             "foundation: approach from first touch to --depth, hold, lift (time 0 = first touch). "
+            "With --method bem the same test runs on the boundary element method (--grid, "
+            "--extent; --profile ellipsoid:RX,RY for an ellipsoidal indenter; "
+            "contact_radius_m is then sqrt(area/pi)). "
             "Writes a CSV with time_s,displacement_m,force_N,contact_radius_m."
         ),
     )
-    add_material_arguments(p)
+    add_material_arguments(p, radius_required=False)
+    add_bem_arguments(p)
     p.add_argument("--duration", type=float, required=True, help="simulated time [s]")
     p.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")
     p.add_argument("--out", type=Path, required=True, help="output CSV file")
@@ -37,13 +42,16 @@ def add_parser(sub, common) -> None:
     p.set_defaults(func=run)
 
 
-def add_material_arguments(p) -> None:
-    """The model options shared by ``simulate`` and ``sweep``."""
+def add_material_arguments(p, *, radius_required: bool = True) -> None:
+    """The model options shared by ``simulate`` and ``sweep``. `radius_required`: False
+    where another option can give the indenter (``simulate --profile``; then checked in
+    `check_args`)."""
     p.add_argument("--G0", type=float, required=True, help="glass shear modulus [Pa]")
     p.add_argument("--G1", type=float, required=True, help="Kelvin-element shear modulus [Pa]")
     p.add_argument("--eta1", type=float, required=True, help="Kelvin-element viscosity [Pa s]")
     p.add_argument("--work-of-adhesion", type=float, required=True, help="Δγ [J/m^2]")
-    p.add_argument("--radius", type=float, required=True, help="indenter radius of curvature R [m]")
+    p.add_argument("--radius", type=float, required=radius_required,
+                   help="indenter radius of curvature R [m]")
     p.add_argument("--depth", type=float, required=True, help="indentation before the lift [m]")
     p.add_argument("--velocity", type=float, required=True, help="lift speed [m/s], > 0")
     p.add_argument("--hold", type=float, default=None, help="hold at --depth [s] (full history)")
@@ -90,18 +98,23 @@ def _check_plausible(args) -> None:
 
 
 def check_args(args) -> None:
+    if hasattr(args, "method"):
+        check_bem_args(args)  # converts --grid and --profile
+    if args.radius is None and getattr(args, "profile", None) is None:
+        raise UsageError("the following arguments are required: --radius")
     for name, unit in _UNITS.items():
         if hasattr(args, name):
             check_number("--" + name.replace("_", "-"), getattr(args, name), unit)
     check_number("--hold", args.hold, "s", low_open=False)
     if args.samples < 2:
         raise UsageError(f"argument --samples: must be an integer >= 2; got {args.samples}")
-    if args.depth >= args.radius:
+    radius = args.radius if args.radius is not None else min(args.profile)
+    if args.depth >= radius:
         raise UsageError(
-            f"argument --depth: {args.depth} m is not small against --radius {args.radius} m "
+            f"argument --depth: {args.depth} m is not small against the radius {radius} m "
             "(the parabolic, small-strain model needs depth << radius); check the units"
         )
-    if args.radius > 1.0 or args.depth > 1e-2:
+    if radius > 1.0 or args.depth > 1e-2:
         raise UsageError(
             "argument --radius/--depth: values above 1 m / 1 cm look like a unit mistake "
             "(all lengths are in metres, e.g. 5e-6 for 5 µm)"
@@ -111,24 +124,22 @@ def check_args(args) -> None:
         raise UsageError("argument --stiffness: needs --hold (the full-history model)")
     if args.approach_velocity is not None and args.hold is None:
         raise UsageError("argument --approach-velocity: needs --hold")
+    if getattr(args, "method", "mdr") == "bem":
+        check_bem_extent(args)
 
 
-def simulate(args):
-    """The `ContactSolution` of the options in `args` (relaxed start or full history)."""
-    import equinox as eqx
-    import jax.numpy as jnp
+def history(args):
+    """The sampled input `(t_sim, d_sim, rows)` of the options in `args`.
+
+    Relaxed start (no --hold): the lift $d = d_0 - v t$ at the requested samples, `rows`
+    None. With --hold: approach from first touch, hold, lift, sampled at the requested
+    times plus the two corners; `rows` selects the requested samples.
+    """
     import numpy as np
 
-    import jaxcontact as jc
-
-    rheology = jc.StandardModel(G0=args.G0, G1=args.G1, eta1=args.eta1)
-    profile = jc.Parabola(R=args.radius)
-    ts = jnp.linspace(0.0, args.duration, args.samples)
+    ts = np.linspace(0.0, args.duration, args.samples)
     if args.hold is None:
-        return jc.retract(
-            rheology, profile, work_of_adhesion=args.work_of_adhesion, depth=args.depth,
-            velocity=args.velocity, ts=ts, throw=False,
-        )
+        return ts, args.depth - args.velocity * ts, None
     v_in = args.approach_velocity if args.approach_velocity is not None else args.velocity
     t_in = args.depth / v_in
     t_hold = t_in + args.hold
@@ -143,6 +154,27 @@ def simulate(args):
         t_sim <= t_in, v_in * t_sim,
         np.where(t_sim <= t_hold, args.depth, args.depth - args.velocity * (t_sim - t_hold)),
     )
+    return t_sim, d, (rows if t_sim.shape != t_out.shape else None)
+
+
+def simulate(args):
+    """The solution of the options in `args`: a `ContactSolution` (MDR: relaxed start or
+    full history) or a `BEMSolution` (``--method bem``)."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    import jaxcontact as jc
+
+    t_sim, d, rows = history(args)
+    if getattr(args, "method", "mdr") == "bem":
+        return simulate_bem(args, t_sim, d, rows)
+    rheology = jc.StandardModel(G0=args.G0, G1=args.G1, eta1=args.eta1)
+    profile = jc.Parabola(R=args.radius)
+    if args.hold is None:
+        return jc.retract(
+            rheology, profile, work_of_adhesion=args.work_of_adhesion, depth=args.depth,
+            velocity=args.velocity, ts=jnp.asarray(t_sim), throw=False,
+        )
     loading = jc.DisplacementControl()
     if args.stiffness is not None:
         # with a compliant loading system the history above is the drive position z(t);
@@ -152,7 +184,7 @@ def simulate(args):
         rheology, profile, args.work_of_adhesion, jnp.asarray(t_sim), jnp.asarray(d),
         loading=loading, throw=False,
     )
-    if t_sim.shape != t_out.shape:
+    if rows is not None:
         sol = eqx.tree_at(
             lambda s: (s.ts, s.displacement, s.force, s.contact_radius),
             sol,

@@ -1,5 +1,11 @@
-"""Tests of the boundary element method (`jaxcontact._bem`)."""
+"""Tests of the boundary element method (`jaxcontact._bem`).
 
+Compilation dominates the cost of these tests: the runs share compiled programs (the same
+grid size, number of samples, rheology form and outputs), and the extents and inputs are
+traced values, so one program serves every run of a group.
+"""
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -10,6 +16,13 @@ import jaxcontact as jc
 E_STAR = 1e6  # Pa
 R = 1e-3  # m
 DGAMMA = 0.05  # J/m^2
+F_FC = -1.5 * np.pi * DGAMMA * R  # JKR pull-off, force control
+F_DC = -5 / 6 * np.pi * DGAMMA * R  # JKR jump-off, displacement control
+A_FC = (9 * np.pi * DGAMMA * R**2 / (8 * E_STAR)) ** (1 / 3)
+A_DC = (np.pi * DGAMMA * R**2 / (8 * E_STAR)) ** (1 / 3)
+D_DC = A_DC**2 / R - np.sqrt(2 * np.pi * A_DC * DGAMMA / E_STAR)
+M_ELASTIC = 75  # samples of every elastic adhesive run (one program per grid)
+M_VISCO = 80  # samples of every viscoelastic run
 
 
 def _gauss_square(m, lo, hi):
@@ -40,6 +53,11 @@ def test_cell_mean_of_love_is_chi():
     assert mean / 2 == pytest.approx(jc.BEM_CHI, rel=1e-6)
 
 
+# --------------------------------------------------------------------------------------
+# non-adhesive elastic solves (one grid size: 64 cells)
+# --------------------------------------------------------------------------------------
+
+
 def test_hertz_force_and_radius():
     d = 1e-5
     a = np.sqrt(R * d)
@@ -62,44 +80,93 @@ def test_flat_punch_stiffness():
     grid = jc.BEMGrid(64, 2.2 * a)
     force, _, p = jc.bem_contact(jc.FlatPunch(a), d, grid=grid, effective_modulus=E_STAR)
     assert float(force) == pytest.approx(2 * a * E_STAR * d, rel=0.02)
+    # tilted by alpha and pressed to d >= 3 a tan(alpha) at its lowest edge, the whole face
+    # is in contact and the force follows the centre's indentation: F = 2 a E* (d - a tan a)
+    alpha = 0.002
+    h = jc.tilted_flat_heights(grid, a, alpha)
+    d = 5 * a * np.tan(alpha)
+    force, _, p = jc.bem_contact(h, d, grid=grid, effective_modulus=E_STAR)
+    assert float(force) == pytest.approx(2 * a * E_STAR * (d - a * np.tan(alpha)), rel=0.02)
+    x, y = grid.coordinates()
+    face = np.asarray(x**2 + y**2 <= a**2)
+    assert np.all(np.asarray(p)[face] > 0) and np.all(np.asarray(p)[~face] == 0)
 
 
-def _jkr_history(steps_in=15, steps_out=60):
-    a_fc = (9 * np.pi * DGAMMA * R**2 / (8 * E_STAR)) ** (1 / 3)
-    a_dc = (np.pi * DGAMMA * R**2 / (8 * E_STAR)) ** (1 / 3)
-    d_dc = a_dc**2 / R - np.sqrt(2 * np.pi * a_dc * DGAMMA / E_STAR)
-    a0 = 1.5 * a_fc
+def test_rough_surface_contact():
+    grid = jc.BEMGrid(64, 1e-4)
+    h = jc.self_affine_heights(grid, hurst=0.8, rms_height=1e-6, seed=3)
+    assert float(jnp.min(h)) == 0.0
+    assert float(jnp.sqrt(jnp.mean((h - h.mean()) ** 2))) == pytest.approx(1e-6, rel=1e-10)
+    np.testing.assert_array_equal(h, jc.self_affine_heights(grid, hurst=0.8, rms_height=1e-6,
+                                                            seed=3))
+    force, depth, p = jc.bem_contact(h, grid=grid, effective_modulus=E_STAR, force=1e-3)
+    assert float(force) == pytest.approx(1e-3, rel=1e-12)
+    assert float(jnp.min(p)) >= 0
+    assert 0 < float(jnp.mean(p > 0)) < 1  # partial contact
+    # displacement control at the depth found reproduces the force (two algorithms)
+    f2, _, p2 = jc.bem_contact(h, depth, grid=grid, effective_modulus=E_STAR)
+    assert float(f2) == pytest.approx(1e-3, rel=1e-6)
+    np.testing.assert_allclose(p2, p, atol=1e-6 * float(p.max()))
+
+
+# --------------------------------------------------------------------------------------
+# adhesive elastic sphere: displacement control, force control, compliant loading
+# --------------------------------------------------------------------------------------
+
+
+def _jkr_history():
+    """Displacement control: approach to 1.5 a_JKR, lift past the jump-off."""
+    a0 = 1.5 * A_FC
     d0 = a0**2 / R
-    disp = np.concatenate([np.linspace(0, d0, steps_in), np.linspace(d0, 1.3 * d_dc, steps_out)])
-    return np.arange(disp.size, dtype=float), disp, a0
+    disp = np.concatenate([np.linspace(0, d0, 15), np.linspace(d0, 1.3 * D_DC, 60)])
+    return np.arange(M_ELASTIC, dtype=float), disp, a0
+
+
+def _force_history():
+    """Force control: load to the JKR force at 2 a_JKR, unload to twice the pull-off."""
+    a1 = 2.0 * A_FC
+    f1 = 4 * E_STAR * a1**3 / (3 * R) - np.sqrt(8 * np.pi * E_STAR * DGAMMA * a1**3)
+    force = np.concatenate([np.linspace(0, f1, 15), np.linspace(f1, 2 * F_FC, 60)])
+    return np.arange(M_ELASTIC, dtype=float), force, a1
+
+
+def _elastic(n, extent, inputs, **kw):
+    kw.setdefault("save_fields", "force" not in kw and "stiffness" not in kw)
+    ts = np.arange(M_ELASTIC, dtype=float)
+    return jc.bem_simulate(jc.Elastic(E_STAR / 4), kw.pop("indenter", jc.Parabola(R)), DGAMMA,
+                           ts, inputs, grid=jc.BEMGrid(n, extent), **kw)
 
 
 @pytest.fixture(scope="module")
 def adhesive_runs():
-    ts, disp, a0 = _jkr_history()
-    out = {}
-    for n in (32, 64):
-        grid = jc.BEMGrid(n, 2.4 * a0)
-        out[n] = jc.bem_simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA, ts, disp,
-                                 grid=grid, save_fields=(n == 32))
-    return out
+    _, disp, a0 = _jkr_history()
+    return {n: _elastic(n, 2.4 * a0, disp) for n in (32, 64)}
+
+
+@pytest.fixture(scope="module")
+def force_run():
+    _, force, a1 = _force_history()
+    return _elastic(32, 2.4 * a1, None, force=force)
 
 
 def test_adhesive_sphere_pulloff_converges_to_jkr(adhesive_runs):
-    f_fc = -1.5 * np.pi * DGAMMA * R
-    errs = {n: float(s.max_tensile_force) / f_fc - 1 for n, s in adhesive_runs.items()}
-    # observed: 13.6 % (R/D = 158), 8.0 % (317), 3.6 % (634): first order in D
+    errs = {n: float(s.max_tensile_force) / F_FC - 1 for n, s in adhesive_runs.items()}
+    # the largest tensile force overshoots JKR, first order in the cell size
+    # (benchmarks/results_bem.md: observed order 1.0 from 32 to 256 cells)
     assert 0 < errs[32] < 0.16
-    assert 0 < errs[64] < 0.10
-    assert errs[64] < 0.7 * errs[32]
-    # displacement control: jump-off at -5/6 pi dgamma R (observed 2.1 %, 0.4 %, 0.3 % at 128)
-    f_dc = -5 / 6 * np.pi * DGAMMA * R
-    assert float(adhesive_runs[32].jumpoff_force) == pytest.approx(f_dc, rel=0.04)
-    assert float(adhesive_runs[64].jumpoff_force) == pytest.approx(f_dc, rel=0.015)
+    assert 0 < errs[64] < 0.09
+    assert 0.4 < errs[64] / errs[32] < 0.6
+    # displacement control: jump-off at -5/6 pi dgamma R
+    assert float(adhesive_runs[32].jumpoff_force) == pytest.approx(F_DC, rel=0.04)
+    assert float(adhesive_runs[64].jumpoff_force) == pytest.approx(F_DC, rel=0.015)
     for s in adhesive_runs.values():
         assert bool(s.detached)
         assert float(s.force[-1]) == 0.0
-        assert float(s.jumpoff_force) < 0
+        assert float(s.jumpoff_displacement) == pytest.approx(D_DC, rel=0.15)
+        # the loading branch is Hertz's (cells attach only when they touch)
+        d0 = float(s.displacement[14])
+        assert float(s.force[14]) == pytest.approx(4 / 3 * E_STAR * np.sqrt(R) * d0**1.5,
+                                                   rel=0.02)
 
 
 def test_adhesive_sphere_grid_symmetry(adhesive_runs):
@@ -117,71 +184,135 @@ def test_adhesive_sphere_grid_symmetry(adhesive_runs):
     assert p.min() >= sigma_c * (1 + 1e-9)
 
 
-def test_relaxed_start_matches_retract():
-    rh = jc.StandardModel(1e6, 0.5e6, 5e4)
-    d0 = 7e-6
-    a0 = np.sqrt(R * d0)
-    tau = float(rh.tau)
-    v = d0 / (5 * tau)
-    ts = np.linspace(0, 12 * tau, 60)
-    ref = jc.retract(rh, jc.Parabola(R), work_of_adhesion=DGAMMA, depth=d0, ts=ts, velocity=v)
-    errs = []
-    for n in (32, 64):
-        s = jc.bem_simulate(rh, jc.Parabola(R), DGAMMA, ts, d0 - v * ts,
-                            grid=jc.BEMGrid(n, 2.6 * a0), relaxed_depth=d0)
-        # t = 0: the relaxed Hertz contact (E* = 4 G_inf)
-        g_inf = float(rh.relaxed_modulus)
-        assert float(s.force[0]) == pytest.approx(16 / 3 * g_inf * np.sqrt(R) * d0**1.5,
-                                                  rel=2e-3)
-        m = ts < min(float(ref.jumpoff_time), float(s.jumpoff_time))
-        errs.append(np.max(np.abs(np.asarray(s.force - ref.force)[m]))
-                    / np.max(np.abs(ref.force)))
-    # observed (60 samples): 9.3 % (32 cells), 6.6 % (64); the benchmark goes finer
-    assert errs[0] < 0.11
-    assert errs[1] < 0.08
-    assert errs[1] < 0.8 * errs[0]
+def test_force_control_pulloff_against_jkr(force_run):
+    _, force, a1 = _force_history()
+    s = force_run
+    # the dead load detaches where no equilibrium carries it: JKR's -3/2 pi dgamma R, with
+    # a first-order error in the cell size (+23 % here, 60 cells across the pull-off
+    # contact; the convergence table is in benchmarks/results_bem.md)
+    assert bool(s.detached)
+    assert 0.15 < float(s.jumpoff_force) / F_FC - 1 < 0.3
+    attached = np.asarray(s.contact_area) > 0
+    # while in contact the contact carries the load; then nothing (no equilibrium)
+    np.testing.assert_allclose(np.asarray(s.force)[attached], force[attached], rtol=1e-7,
+                               atol=1e-9 * np.abs(force).max())
+    assert np.all(np.isnan(np.asarray(s.displacement)[~attached][1:]))
+    assert np.all(np.asarray(s.force)[~attached][1:] == 0)
+    assert float(s.max_tensile_force) == float(s.jumpoff_force)
+    # a second method: displacement control along the indentation found under force
+    # control gives back the applied force (the same discrete equilibria)
+    d = np.asarray(s.displacement)
+    ok = np.isfinite(d)
+    dc = _elastic(32, 2.4 * a1, np.where(ok, d, d[ok][-1]))
+    np.testing.assert_allclose(np.asarray(dc.force)[ok], force[ok], rtol=0,
+                               atol=1e-8 * np.abs(force).max())
 
 
-def test_input_validation():
-    grid = jc.BEMGrid(8, 1e-4)
-    with pytest.raises(ValueError, match="extent"):
-        jc.BEMGrid(8, -1.0)
-    with pytest.raises(ValueError, match="cells"):
-        jc.BEMGrid(1, 1.0)
-    with pytest.raises(ValueError, match="work_of_adhesion"):
-        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), -1.0, [0.0], [1e-6], grid=grid)
-    with pytest.raises(ValueError, match="indenter"):
-        jc.bem_simulate(jc.Elastic(1e6), np.zeros((4, 4)), 0.1, [0.0], [1e-6], grid=grid)
-    with pytest.raises(ValueError, match="displacement"):
-        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, [0.0, 1.0], [1e-6], grid=grid)
-    with pytest.raises(Exception, match="edge of the grid"):
-        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.0, [0.0], [1e-5], grid=grid)
-    with pytest.raises(ValueError, match="radius_x"):
-        jc.ellipsoid_heights(grid, 0.0, 1.0)
+def test_compliant_loading_between_force_and_displacement_control(force_run):
+    _, _, a1 = _force_history()
+    d_max = float(np.nanmax(force_run.displacement))
+    z = np.concatenate([np.linspace(0, 1.2 * d_max, 15), np.linspace(1.2 * d_max, -3 * d_max,
+                                                                     60)])
+    k = 200.0  # N/m; the contact stiffness 2 a E* is about 200 N/m at the pull-off
+    s = _elastic(32, 2.4 * a1, z, stiffness=k)
+    assert bool(s.detached)
+    d, F = np.asarray(s.displacement), np.asarray(s.force)
+    inside = np.asarray(s.contact_area) > 0
+    # the spring balances the contact: k (z - d) = F; off contact the indenter follows z
+    np.testing.assert_allclose(k * (z - d)[inside], F[inside], rtol=0,
+                               atol=1e-8 * np.abs(F).max())
+    np.testing.assert_allclose(d[~inside][1:], z[~inside][1:], rtol=1e-12)
+    # the jump-off lies between force control (k -> 0) and displacement control (k -> inf):
+    # JKR where dF/dd = -k on the unstable branch, here at -0.759 x 3/2 pi dgamma R
+    # (computed from the JKR curve); the 32-cell grid overshoots it like force control
+    jump = float(s.jumpoff_force) / F_FC
+    assert 5 / 9 < jump < float(force_run.jumpoff_force) / F_FC
+    assert jump == pytest.approx(0.759, rel=0.15)
 
 
-def test_approach_hold_lift_matches_mdr_simulate():
-    rh = jc.StandardModel(1e6, 0.5e6, 5e4)
-    d0 = 7e-6
-    a0 = np.sqrt(R * d0)
-    tau = float(rh.tau)
+# --------------------------------------------------------------------------------------
+# viscoelastic sphere against the MDR models (one program per grid for both histories)
+# --------------------------------------------------------------------------------------
+
+RHEOLOGY = jc.StandardModel(1e6, 0.5e6, 5e4)
+D0 = 7e-6
+
+
+def _visco_histories():
+    tau = float(RHEOLOGY.tau)
+    v = D0 / (5 * tau)
+    ts_r = np.linspace(0, 12 * tau, M_VISCO)
     t1 = np.linspace(0, 2 * tau, 20)
     t2 = np.linspace(2 * tau, 4 * tau, 11)[1:]
-    t3 = np.linspace(4 * tau, 10 * tau, 60)[1:]
-    ts = np.concatenate([t1, t2, t3])
-    disp = np.concatenate([d0 * t1 / (2 * tau), np.full(10, d0),
-                           d0 - (t3 - 4 * tau) * d0 / (3 * tau)])
-    ref = jc.simulate(rh, jc.Parabola(R), DGAMMA, ts, disp)
-    s = jc.bem_simulate(rh, jc.Parabola(R), DGAMMA, ts, disp, grid=jc.BEMGrid(32, 2.6 * a0))
-    # approach and hold are non-adhesive: the peak force agrees closely on a coarse grid
-    assert float(s.force.max()) == pytest.approx(float(ref.force.max()), rel=2e-3)
-    # lift (observed at 32 / 64 / 128 cells): max tensile force +7.3 / +6.5 / +2.4 %,
-    # jump-off time +3.0 / +1.5 / +0.8 %, max force error 11 / 5.4 / 4.2 % of the peak
-    assert float(s.max_tensile_force) == pytest.approx(float(ref.max_tensile_force), rel=0.1)
-    assert float(s.jumpoff_time) == pytest.approx(float(ref.jumpoff_time), rel=0.05)
-    m = ts < min(float(ref.jumpoff_time), float(s.jumpoff_time))
-    err = np.max(np.abs(np.asarray(s.force - ref.force)[m])) / np.max(np.abs(ref.force))
-    assert err < 0.13
+    t3 = np.linspace(4 * tau, 10 * tau, M_VISCO - 29)[1:]
+    ts_h = np.concatenate([t1, t2, t3])
+    d_h = np.concatenate([D0 * t1 / (2 * tau), np.full(10, D0),
+                          D0 - (t3 - 4 * tau) * D0 / (3 * tau)])
+    return (ts_r, D0 - v * ts_r, v), (ts_h, d_h)
+
+
+@pytest.fixture(scope="module")
+def visco_runs():
+    (ts_r, d_r, v), (ts_h, d_h) = _visco_histories()
+    out = {"retract": jc.retract(RHEOLOGY, jc.Parabola(R), work_of_adhesion=DGAMMA, depth=D0,
+                                 ts=ts_r, velocity=v),
+           "simulate": jc.simulate(RHEOLOGY, jc.Parabola(R), DGAMMA, ts_h, d_h)}
+    for n in (32, 64):
+        grid = jc.BEMGrid(n, 2.6 * np.sqrt(R * D0))
+        out["relaxed", n] = jc.bem_simulate(RHEOLOGY, jc.Parabola(R), DGAMMA, ts_r, d_r,
+                                            grid=grid, relaxed_depth=D0)
+        out["history", n] = jc.bem_simulate(RHEOLOGY, jc.Parabola(R), DGAMMA, ts_h, d_h,
+                                            grid=grid)
+    return out
+
+
+def _errors(s, ref):
+    """Errors of a BEM run against the MDR reference: the largest force error before 90 %
+    of the first jump-off time (the discrete ring-by-ring detachment makes a sawtooth near
+    it) over the largest force, the largest tensile force and the jump-off time."""
+    t_j = min(float(ref.jumpoff_time), float(s.jumpoff_time))
+    m = np.asarray(s.ts) < 0.9 * t_j
+    force = np.max(np.abs(np.asarray(s.force - ref.force)[m])) / np.max(np.abs(ref.force))
+    tensile = float(s.max_tensile_force) / float(ref.max_tensile_force) - 1
+    return force, tensile, float(s.jumpoff_time) / float(ref.jumpoff_time) - 1
+
+
+def test_relaxed_start_matches_retract(visco_runs):
+    ref = visco_runs["retract"]
+    g_inf = float(RHEOLOGY.relaxed_modulus)
+    errs = {}
+    for n in (32, 64):
+        s = visco_runs["relaxed", n]
+        # t = 0: the relaxed Hertz contact (E* = 4 G_inf)
+        assert float(s.force[0]) == pytest.approx(16 / 3 * g_inf * np.sqrt(R) * D0**1.5,
+                                                  rel=2e-3)
+        assert bool(s.detached)
+        errs[n] = _errors(s, ref)
+    # every error decreases with the cell size, about first order (more cells in
+    # benchmarks/results_bem.md); the discrete front detaches late and pulls harder
+    (f32, t32, j32), (f64, t64, j64) = errs[32], errs[64]
+    assert f32 < 0.1 and f64 < 0.7 * f32
+    assert 0 < t64 < 0.7 * t32 < 0.1
+    assert 0 < j64 < 0.7 * j32 < 0.05
+
+
+def test_approach_hold_lift_matches_mdr_simulate(visco_runs):
+    ref = visco_runs["simulate"]
+    errs = {}
+    for n in (32, 64):
+        s = visco_runs["history", n]
+        # approach and hold are non-adhesive: the peak force agrees closely on a coarse grid
+        assert float(s.force.max()) == pytest.approx(float(ref.force.max()), rel=3e-3)
+        errs[n] = _errors(s, ref)
+    (f32, t32, j32), (f64, t64, j64) = errs[32], errs[64]
+    assert f32 < 0.04 and f64 < 0.8 * f32
+    assert 0 < t64 < 0.7 * t32 < 0.1
+    assert 0 < j64 < 0.7 * j32 < 0.04
+
+
+# --------------------------------------------------------------------------------------
+# indenters, validation, derivatives
+# --------------------------------------------------------------------------------------
 
 
 def test_ellipsoid_orientation_independent():
@@ -189,43 +320,77 @@ def test_ellipsoid_orientation_independent():
     rg = np.sqrt(rx * ry)
     a_fc = (9 * np.pi * DGAMMA * rg**2 / (8 * E_STAR)) ** (1 / 3)
     d0 = (1.5 * a_fc) ** 2 / rg
-    disp = np.concatenate([np.linspace(0, d0, 10), np.linspace(d0, -0.6 * d0, 40)])
-    ts = np.arange(disp.size, dtype=float)
+    disp = np.concatenate([np.linspace(0, d0, 15), np.linspace(d0, -0.6 * d0, 60)])
     grid = jc.BEMGrid(32, 7.0 * a_fc)
-    runs = [jc.bem_simulate(jc.Elastic(E_STAR / 4), jc.ellipsoid_heights(grid, a, b), DGAMMA,
-                            ts, disp, grid=grid) for a, b in ((rx, ry), (ry, rx))]
+    runs = [_elastic(32, 7.0 * a_fc, disp, indenter=jc.ellipsoid_heights(grid, a, b))
+            for a, b in ((rx, ry), (ry, rx))]
     np.testing.assert_allclose(runs[0].force, runs[1].force, rtol=1e-7,
                                atol=1e-9 * float(jnp.max(jnp.abs(runs[0].force))))
+    np.testing.assert_array_equal(runs[0].attached, np.swapaxes(runs[1].attached, 1, 2))
     assert bool(runs[0].detached)
+    # the contact is elongated along the larger radius
+    att = np.asarray(runs[0].attached[14])
+    assert np.sum(np.any(att, axis=1)) > 1.5 * np.sum(np.any(att, axis=0))
 
 
-def test_rough_surface_contact():
-    grid = jc.BEMGrid(32, 1e-4)
-    h = jc.self_affine_heights(grid, hurst=0.8, rms_height=1e-6, seed=3)
-    assert float(jnp.min(h)) == 0.0
-    assert float(jnp.sqrt(jnp.mean((h - h.mean()) ** 2))) == pytest.approx(1e-6, rel=1e-10)
-    np.testing.assert_array_equal(h, jc.self_affine_heights(grid, hurst=0.8, rms_height=1e-6,
-                                                            seed=3))
-    force, depth, p = jc.bem_contact(h, grid=grid, effective_modulus=E_STAR, force=1e-3)
-    assert float(force) == pytest.approx(1e-3, rel=1e-12)
-    assert float(jnp.min(p)) >= 0
-    # displacement control at the depth found reproduces the force (two algorithms)
-    f2, _, p2 = jc.bem_contact(h, depth, grid=grid, effective_modulus=E_STAR)
-    assert float(f2) == pytest.approx(1e-3, rel=1e-6)
-    np.testing.assert_allclose(p2, p, atol=1e-6 * float(p.max()))
+def test_input_validation():
+    grid = jc.BEMGrid(8, 1e-4)
+    ts1 = [0.0]
+    with pytest.raises(ValueError, match="extent"):
+        jc.BEMGrid(8, -1.0)
+    with pytest.raises(ValueError, match="cells"):
+        jc.BEMGrid(1, 1.0)
+    with pytest.raises(ValueError, match="work_of_adhesion"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), -1.0, ts1, [1e-6], grid=grid)
+    with pytest.raises(ValueError, match="indenter"):
+        jc.bem_simulate(jc.Elastic(1e6), np.zeros((4, 4)), 0.1, ts1, [1e-6], grid=grid)
+    with pytest.raises(ValueError, match="displacement"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, [0.0, 1.0], [1e-6], grid=grid)
+    with pytest.raises(ValueError, match="exactly one of `displacement`"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], force=[1.0],
+                        grid=grid)
+    with pytest.raises(ValueError, match="exactly one of `displacement`"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, grid=grid)
+    with pytest.raises(ValueError, match="force"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, force=[np.nan], grid=grid)
+    with pytest.raises(ValueError, match="stiffness"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, force=[1.0], stiffness=1.0,
+                        grid=grid)
+    with pytest.raises(ValueError, match="stiffness"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], stiffness=-1.0,
+                        grid=grid)
+    with pytest.raises(ValueError, match="relaxed_depth"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], relaxed_depth=0.0,
+                        grid=grid)
+    with pytest.raises(ValueError, match="radius_x"):
+        jc.ellipsoid_heights(grid, 0.0, 1.0)
+    # a grid smaller than the contact: an error under throw=True, a flag otherwise (the
+    # compiled program of the 32-cell adhesive runs)
+    disp = np.full(M_ELASTIC, 4 * A_FC**2 / R)
+    with pytest.raises(Exception, match="edge of the grid"):
+        _elastic(32, 2 * A_FC, disp)
+    assert bool(_elastic(32, 2 * A_FC, disp, throw=False).stats["touches_edge"])
 
 
 def test_forward_mode_derivative_matches_finite_difference():
-    import jax
-
+    # d F / d eta1 of a viscoelastic loading and adhesive lift: the viscosity enters every
+    # step's modulus and creep shift (the attached set stays the same within the step)
     grid = jc.BEMGrid(16, 4e-4)
-    ts, disp = np.arange(3.0), np.array([0.0, 1e-5, 0.5e-5])
+    tau = float(RHEOLOGY.tau)
+    ts, disp = np.array([0.0, tau, 2 * tau]), np.array([0.0, 1e-5, 0.4e-5])
 
-    def force(g):
-        return jc.bem_simulate(jc.Elastic(g), jc.Parabola(R), DGAMMA, ts, disp, grid=grid,
-                               throw=False).force
+    def force(eta):
+        rh = jc.StandardModel(RHEOLOGY.G0, RHEOLOGY.G1, eta)
+        return jc.bem_simulate(rh, jc.Parabola(R), DGAMMA, ts, disp, grid=grid, throw=False,
+                               refine_steps=0).force
 
-    g0, dg = 2.5e5, 1.0
-    fd = (force(g0 + dg) - force(g0 - dg)) / (2 * dg)
-    np.testing.assert_allclose(jax.jacfwd(force)(g0), fd, rtol=1e-6)
-    assert float(fd[1]) > 0
+    def jvp(eta):  # one compiled program gives the values and the derivative
+        return jax.jvp(force, (eta,), (jnp.ones_like(eta),))
+
+    eta0 = jnp.asarray(float(RHEOLOGY.eta1))
+    step = 1e-6 * eta0
+    fd = (jvp(eta0 + step)[0] - jvp(eta0 - step)[0]) / (2 * step)
+    value, tangent = jvp(eta0)
+    np.testing.assert_allclose(tangent, fd, rtol=1e-5, atol=1e-9 * float(jnp.max(jnp.abs(fd))))
+    # a stiffer dashpot holds more force while pressing; the lift is adhesive
+    assert float(fd[1]) > 0 and float(value[2]) < 0

@@ -31,6 +31,7 @@ __all__ = [
     "as_float",
     "cast_floats",
     "float_dtype",
+    "floats_to_arrays",
     "golden_section",
     "implicit_extremum",
     "newton_iterate",
@@ -86,6 +87,13 @@ def cast_floats(tree, dtype):
         return lax.convert_element_type(jnp.asarray(leaf), dtype)
 
     return jax.tree_util.tree_map(convert, tree)
+
+
+def floats_to_arrays(tree):
+    """Every floating leaf of `tree` as a strongly typed array of the tree's precision
+    (`float_dtype`): one compiled program then serves every value and float32 inputs
+    stay float32."""
+    return cast_floats(tree, float_dtype(tree))
 
 
 def smallest(values: Array) -> Array:

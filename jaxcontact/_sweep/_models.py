@@ -46,9 +46,10 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._elastic import _critical_radius, _front_displacement, profile_radius
+from .._elastic import profile_radius
 from .._foundation import FoundationGrid, simulate
-from .._pulloff import _prony_arrays, retract
+from .._profiles import front_displacement
+from .._pulloff import prony_arrays, retract
 from .._root import bracketed_root
 from .._solution import RESULTS
 
@@ -76,16 +77,16 @@ class PointResult(eqx.Module):
 
 
 def _front_constants(rheology, profile, work_of_adhesion):
-    G_inf, G, tau = _prony_arrays(rheology)
+    G_inf, G, tau = prony_arrays(rheology)
     G_g = G_inf + jnp.sum(G)
     c = jnp.sqrt(0.5 * jnp.pi * work_of_adhesion * G_g) / G_inf
     one = jnp.ones_like(G_inf)
     # the touch radius g(a0) = d0 = 1, rounded up by a few ulp so that g(a0) >= d0 also after
     # round-off (retract flags a lift whose start lies beyond g(a0) as an advancing contact,
     # with a tolerance below float32's resolution)
-    a0 = profile_radius(profile, one) * (1 + 4 * jnp.finfo(one.dtype).eps)
-    a_fold = _critical_radius(profile, c, 0.5)
-    h_crit = _front_displacement(profile, jnp.minimum(a_fold, a0), c)
+    a0 = profile_radius(profile, one, throw=False) * (1 + 4 * jnp.finfo(one.dtype).eps)
+    a_fold = profile.critical_radius(c, 0.5)
+    h_crit = front_displacement(profile, jnp.minimum(a_fold, a0), c)
     return G / G_inf, tau, h_crit, a0
 
 

@@ -34,6 +34,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from .._validate import plausibility_checks, unchecked
 from ._models import PointResult
 
 __all__ = ["run_points", "default_precision", "chunk_size_for"]
@@ -82,8 +83,12 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
     def one(cols):
         rheology = material.build(cols)
         shape = profile.build(cols)
-        out = model.solve(rheology, shape, cols, curves=curves)
-        return out
+        # the models work in scaled units (depth = velocity = 1): the unit plausibility
+        # checks of the entry functions do not apply there (the sweep's SI inputs are
+        # checked before the run); an invalid point is reported in its status, so the
+        # run-time guards of the material and shape methods stay off (`unchecked`)
+        with plausibility_checks(False), unchecked():
+            return model.solve(rheology, shape, cols, curves=curves)
 
     fn = jax.jit(jax.vmap(one), in_shardings=(sharding,), out_shardings=sharding)
     return fn, sharding

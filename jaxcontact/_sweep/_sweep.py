@@ -7,6 +7,7 @@ import datetime
 import numpy as np
 
 from .._solution import RESULTS
+from .._validate import check_plausible, plausibility_enabled
 from .._version import __version__
 from ._models import AbstractSweepModel, RelaxedStart
 from ._parameters import parameter_info, parse_spec, scale_factors
@@ -50,6 +51,11 @@ def _status_attrs():
         description="detached and in_contact are successes (in_contact: the point did not "
                     "detach within its lift); the others are errors, whose summaries are NaN",
     )
+
+
+# sweep dimensions -> the kinds of `jaxcontact.PLAUSIBLE` (angles have none)
+_PLAUSIBLE_KIND = {"length": "length", "modulus": "modulus", "viscosity": "viscosity",
+                   "time": "time", "adhesion": "work_of_adhesion", "velocity": "velocity"}
 
 
 def sweep(
@@ -129,6 +135,11 @@ def sweep(
 
     # ---- the points in their own units (float64) --------------------------------------------
     v = spec.values
+    if plausibility_enabled():  # the SI inputs (the run itself works in scaled units)
+        for n, a in v.items():
+            kind = _PLAUSIBLE_KIND.get(parameter_info(n).dimension)
+            if kind is not None:
+                check_plausible(n, a, kind)
     length = v["depth"]
     modulus = spec.material.relaxed_modulus(v)
     tref = v["depth"] / v["velocity"]

@@ -1,7 +1,12 @@
-"""fitting: inverse identification of G0, G1, η1, Δγ from measured force–displacement curves.
+"""fitting: inverse identification of the rheology, Δγ and the contact point from measured
+force–displacement curves (SI units: s, m, N; indentation positive into the sample,
+compressive force positive, adhesion negative).
 
-Data in: :class:`Curve` and the loaders :func:`load_curve`,
-:func:`load_csv`, :func:`load_afm`; all SI units (s, m, N).
+Data in: :class:`Curve` and the loaders :func:`load_curve`, :func:`load_csv`,
+:func:`load_afm` with :func:`preprocess` (baseline, tip position, contact point).
+Identification: :func:`fit` (global search, uncertainty) → :class:`FitResult`;
+:func:`write_report` (``parameters.json``, ``parameters.csv``, ``fit.csv``);
+:func:`profile_likelihood`; :func:`solve` / :func:`solve_batch` for many problems.
 """
 
 from ._curve import DEFAULT_LIMITS as DEFAULT_LIMITS
@@ -15,23 +20,38 @@ from ._curve import resample as resample
 from ._curve import select_segments as select_segments
 from ._io_afm import load_afm as load_afm
 from ._io_csv import load_csv as load_csv
+from ._least_squares import LBFGS as LBFGS
+from ._least_squares import LevenbergMarquardt as LevenbergMarquardt
 from ._load import load_curve as load_curve
 from ._load import supported_formats as supported_formats
-from ._objective import CurveBatch as CurveBatch
-from ._objective import ModelSpec as ModelSpec
-from ._objective import initial_guess as initial_guess
-from ._objective import make_spec as make_spec
-from ._objective import prepare_curves as prepare_curves
+from ._objective import effective_force as effective_force
+from ._objective import predict as predict
 from ._objective import residuals as residuals
+from ._optimise import DEFAULT_STARTS as DEFAULT_STARTS
 from ._optimise import OPTIMISERS as OPTIMISERS
-from ._optimise import FitResult as FitResult
 from ._optimise import fit as fit
 from ._optimise import solve as solve
 from ._optimise import solve_batch as solve_batch
+from ._parameters import Parameterisation as Parameterisation
+from ._parameters import make_parameterisation as make_parameterisation
+from ._prepare import CurveBatch as CurveBatch
+from ._prepare import prepare_curves as prepare_curves
+from ._prepare import select_samples as select_samples
 from ._preprocess import preprocess as preprocess
 from ._profile import profile_likelihood as profile_likelihood
+from ._report import result_table as result_table
 from ._report import write_report as write_report
+from ._result import FitResult as FitResult
+from ._result import ModelChoice as ModelChoice
+from ._spec import ModelSpec as ModelSpec
+from ._spec import make_spec as make_spec
+from ._spec import parameter_info as parameter_info
+from ._start import DataScales as DataScales
+from ._start import data_scales as data_scales
+from ._start import default_bounds as default_bounds
+from ._start import initial_guess as initial_guess
 from ._uncertainty import IdentifiabilityWarning as IdentifiabilityWarning
+from ._uncertainty import ModelValidityWarning as ModelValidityWarning
 from ._units import parse_units as parse_units
 from ._units import unit_factor as unit_factor
 from ._xla import XLA_CPU_FLAGS as XLA_CPU_FLAGS

@@ -84,7 +84,8 @@ def load_afm(
         raise
     except BaseException as exc:  # afmformats' errors derive from BaseException
         raise DataError(
-            f"{path}: afmformats cannot read it ({type(exc).__name__}: {exc})"
+            f"{path}: afmformats cannot read it "
+            f"({type(exc).__name__}: {str(exc).replace(str(path), 'the file')})"
         ) from None
     finally:
         afm_log.setLevel(level)

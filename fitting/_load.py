@@ -116,8 +116,12 @@ def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
             if any("detect" not in r.recipe for r in _afm_recipes(path.suffix)):
                 try:
                     return load_afm(path, **_afm_options(path, kw))
-                except DataError:
-                    pass
+                except DataError as afm_error:
+                    # both readers failed: say why each did
+                    t = str(table_error).removeprefix(f"{path}: ")
+                    a = str(afm_error).removeprefix(f"{path}: ")
+                    raise DataError(f"{path}: not a table ({t}); as an instrument file "
+                                    f"read by afmformats: {a}") from None
             raise table_error from None
     if _afm_recipes(path.suffix):
         return load_afm(path, **kw)

@@ -1,16 +1,29 @@
-"""Fit outputs: ``parameters.json``, ``parameters.csv``, ``fit.png`` in an output folder.
+"""Fit outputs as data: ``parameters.json``, ``parameters.csv``, ``fit.csv``.
 
-``parameters.json``: ``{"<name>_<unit>": {"value": v, "stderr": s, "fixed": bool}, ...,
-"r_squared": R², "reduced_chi2": χ²_red, "chi2": χ², "n_data": m, "n_free": k,
-"converged": bool, "model": ..., "rheology": ..., "radius_m": R, "loading":
-{"type": "displacement" | "compliant", "spring_constant_N_m": [k per curve] | null},
-"correlation": {"names": [...], "matrix": [[...]]}, "warnings": [...], "timings_s": {...},
-"curves": [sources], "inputs": [{"source", "segments", "samples", "duration_s",
-"spring_constant_N_m"}, ...]}`` (``inputs``: each curve as loaded, its segments and the
-cantilever spring constant it carries, from the instrument file or the loader; ``null``
-if none). Standard-model fits also carry the derived ``G_inf_Pa`` and
-``tau_s`` (values only). ``parameters.csv``: one row per parameter with the columns
-``parameter,unit,value,stderr,relative_stderr,fixed``.
+``parameters.json`` (strict JSON: no NaN or Infinity; a missing number is ``null`` with the
+reason in ``status``): per parameter ``"<name>_<unit>": {"value", "stderr",
+"relative_stderr", "status", "fixed"}``; derived values of the standard model (``G_inf_Pa``,
+``tau_s``); quality (``r_squared``, ``r_squared_contact``, ``reduced_chi2``, ``chi2``,
+``aic``, ``bic``, ``n_data``, ``n_free``, ``converged``); the model (``model``,
+``rheology``, ``radius_m``, ``loading``, ``contact_point`` and ``force_offset`` choices,
+``model_selection`` for ``rheology="auto"``); the search (``start_losses``);
+``correlation``; ``warnings``; ``timings_s``; ``inputs`` (each curve's
+source, segments, samples, duration, spring constant, and its detected contact point and
+baseline when a loader found them).
+
+``parameters.csv``: one row per parameter:
+``parameter,unit,value,stderr,relative_stderr,status,fixed``.
+
+``fit.csv``: one row per fitted sample:
+``curve,segment,time_s,indentation_m,force_N,model_force_N,residual,weight,contact_radius_m``
+(``time_s`` from the first fitted sample of the curve; ``model_force_N``: the model's
+force at the sample time; ``residual``: the fitted residual (model − data)/σ with σ the
+sample's noise, which at the sample whose interval holds the model's jump-off compares the
+interval average of the model force (:mod:`fitting._objective`); ``weight``: the number
+of measured samples the row stands for, its factor in χ² = Σ weight·residual²;
+``contact_radius_m`` of the model).
+
+The figure is drawn by the command line layer (``jaxcontact_cli.plot_fit``).
 """
 
 from __future__ import annotations
@@ -22,37 +35,50 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["write_report", "result_table"]
+from ._prepare import SEGMENTS
+
+__all__ = ["write_report", "result_table", "write_samples"]
 
 
 def _num(x):
+    if x is None:
+        return None
     x = float(x)
     return x if math.isfinite(x) else None
 
 
 def result_table(result) -> dict:
-    """The content of ``parameters.json`` as a dict."""
+    """The content of ``parameters.json`` as a dict (strict-JSON values)."""
     out: dict = {}
-    for col, v, s, f in zip(result.columns, result.values, result.stderr, result.fixed,
-                            strict=True):
-        out[col] = {"value": _num(v), "stderr": _num(s), "fixed": bool(f)}
+    for col, v, s, st, f in zip(result.columns, result.values, result.stderr,
+                                result.status, result.fixed, strict=True):
+        rel = float(s) / abs(float(v)) if (math.isfinite(float(s)) and float(v) != 0) else None
+        out[col] = {"value": _num(v), "stderr": _num(s), "relative_stderr": _num(rel),
+                    "status": st, "fixed": bool(f)}
     if result.spec.rheology == "standard":
         g0, g1, eta = (float(result.values[i]) for i in range(3))
-        out["G_inf_Pa"] = {"value": g0 * g1 / (g0 + g1), "derived": True}
-        out["tau_s"] = {"value": eta / (g0 + g1), "derived": True}
+        out["G_inf_Pa"] = {"value": _num(g0 * g1 / (g0 + g1)), "derived": True}
+        out["tau_s"] = {"value": _num(eta / (g0 + g1)), "derived": True}
     out.update(
-        r_squared=_num(result.r_squared), reduced_chi2=_num(result.reduced_chi2),
-        chi2=_num(result.chi2), n_data=int(result.n_data), n_free=int(result.n_free),
+        r_squared=_num(result.r_squared), r_squared_contact=_num(result.r_squared_contact),
+        reduced_chi2=_num(result.reduced_chi2), chi2=_num(result.chi2),
+        aic=_num(result.aic), bic=_num(result.bic),
+        n_data=int(result.n_data), n_free=int(result.n_free),
         converged=bool(result.converged), model=result.spec.model,
-        rheology=(result.spec.rheology if result.spec.rheology == "standard"
-                  else f"prony:{result.spec.arms}"),
-        radius_m=result.radius,
+        rheology=result.rheology, radius_m=_num(result.radius),
+        profile=type(result.profile).__name__,
         loading=_loading(result),
+        contact_point="fit" if result.spec.contact_offset else "fixed",
+        force_offset=bool(result.spec.force_offset),
+        model_selection=[{"rheology": m.rheology, "chi2": _num(m.chi2), "k": m.k,
+                          "n": m.n, "aic": _num(m.aic), "bic": _num(m.bic),
+                          "chosen": m.chosen} for m in result.model_selection],
+        optimiser=result.optimiser,
+        start_losses=[_num(x) for x in np.asarray(result.start_losses)],
         correlation={"names": list(result.columns),
                      "matrix": [[_num(x) for x in row] for row in result.correlation]},
         warnings=list(result.warnings),
         timings_s={k: float(v) for k, v in result.timings.items()},
-        curves=[getattr(c, "source", "") for c in result.curves],
         inputs=[_input_info(c) for c in result.curves],
     )
     return out
@@ -66,71 +92,64 @@ def _loading(result) -> dict:
 
 
 def _input_info(curve) -> dict:
-    k = getattr(curve, "spring_constant", None)
+    k = curve.spring_constant
     time = np.asarray(curve.time)
-    return {"source": getattr(curve, "source", ""),
-            "segments": list(curve.segment_names),
-            "samples": len(time),
-            "duration_s": float(time[-1] - time[0]),
-            "spring_constant_N_m": None if k is None else float(k)}
+    out = {"source": curve.source, "segments": list(curve.segment_names),
+           "samples": len(time), "duration_s": float(time[-1] - time[0]),
+           "spring_constant_N_m": None if k is None else float(k), "contact": None}
+    c = curve.contact
+    if c is not None:
+        out["contact"] = {"method": c.method, "time_s": _num(c.time),
+                          "baseline": c.baseline, "baseline_region": c.baseline_region,
+                          "noise_N": _num(c.noise)}
+    return out
 
 
-def _write_figure(result, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    data, sol = result.data, result.model_solution
+def write_samples(result, path) -> pathlib.Path:
+    """Write ``fit.csv`` (one row per fitted sample; see the module docstring)."""
+    path = pathlib.Path(path)
+    data = result.data
     valid = np.asarray(data.valid) > 0
-    fig, axes = plt.subplots(3, 1, figsize=(7, 9), sharex=True,
-                             gridspec_kw={"height_ratios": [3, 1.3, 1.5]})
-    for c in range(data.n_curves):
-        m = valid[c]
-        x = np.asarray(data.indentation[c])[m] * 1e6
-        fd = np.asarray(data.force[c])[m] * 1e9
-        fm = np.asarray(sol.force[c])[m] * 1e9
-        line = axes[0].plot(x, fd, ".", ms=2, alpha=0.5, label=f"data {c + 1}")[0]
-        axes[0].plot(x, fm, "-", color=line.get_color(), lw=1.2, label=f"fit {c + 1}")
-        axes[1].plot(x, (fd - fm) / (float(data.sigma[c]) * 1e9), ".", ms=2,
-                     color=line.get_color())
-        axes[2].plot(x, np.asarray(sol.contact_radius[c])[m] * 1e6, "-",
-                     color=line.get_color())
-    axes[0].set_ylabel("force [nN]")
-    axes[0].legend(fontsize=7, ncol=2)
-    axes[0].set_title(f"{result.spec.model} model, R² = {result.r_squared:.4f}, "
-                      f"χ²_red = {result.reduced_chi2:.3g}")
-    axes[1].set_ylabel("residual / σ")
-    axes[1].axhline(0, color="k", lw=0.5)
-    axes[2].set_ylabel("contact radius [µm]")
-    axes[2].set_xlabel("indentation [µm]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    ts, d, f = (np.asarray(x) for x in (data.ts, data.indentation, data.force))
+    seg = np.asarray(data.segment)
+    fm = np.asarray(result.model_force)
+    ff = np.asarray(result.fitted_force)
+    a = np.asarray(result.model_solution.contact_radius)
+    noise = np.asarray(data.noise)
+    weight = np.asarray(data.weight)
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["curve", "segment", "time_s", "indentation_m", "force_N", "model_force_N",
+                    "residual", "weight", "contact_radius_m"])
+        for c in range(data.n_curves):
+            for i in np.flatnonzero(valid[c]):
+                w.writerow([c, SEGMENTS[int(seg[c, i])], repr(float(ts[c, i])),
+                            repr(float(d[c, i])), repr(float(f[c, i])), repr(float(fm[c, i])),
+                            repr(float((ff[c, i] - f[c, i]) / noise[c, i])),
+                            repr(float(weight[c, i])), repr(float(a[c, i]))])
+    return path
 
 
-def write_report(result, out_dir, *, figure: bool = True) -> dict[str, pathlib.Path]:
-    """Write ``parameters.json``, ``parameters.csv`` and ``fit.png`` into `out_dir`.
-
-    The folder is created if needed. **Returns** the paths by kind.
-    """
+def write_report(result, out_dir) -> dict[str, pathlib.Path]:
+    """Write ``parameters.json``, ``parameters.csv`` and ``fit.csv`` into `out_dir`
+    (created if needed). **Returns** the paths by kind ("json", "csv", "samples")."""
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     table = result_table(result)
-    paths = {"json": out / "parameters.json", "csv": out / "parameters.csv"}
+    paths = {"json": out / "parameters.json", "csv": out / "parameters.csv",
+             "samples": out / "fit.csv"}
     paths["json"].write_text(json.dumps(table, indent=2, allow_nan=False) + "\n")
     with paths["csv"].open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["parameter", "unit", "value", "stderr", "relative_stderr", "fixed"])
-        for col, v, s, f in zip(result.columns, result.values, result.stderr, result.fixed,
-                                strict=True):
-            name, unit = col.rsplit("_", 1) if not col.endswith("_Pa_s") else (
-                col[:-5], "Pa_s")
-            if col.endswith("_J_m2"):
-                name, unit = col[:-5], "J_m2"
-            rel = float(s) / float(v) if math.isfinite(float(s)) else float("nan")
-            w.writerow([name, unit, repr(float(v)), repr(float(s)), repr(rel), bool(f)])
-    if figure:
-        paths["figure"] = out / "fit.png"
-        _write_figure(result, paths["figure"])
+        w.writerow(["parameter", "unit", "value", "stderr", "relative_stderr", "status",
+                    "fixed"])
+        for name, unit, col in zip(result.names, result.units, result.columns, strict=True):
+            e = table[col]
+            w.writerow([name, unit, _cell(e["value"]), _cell(e["stderr"]),
+                        _cell(e["relative_stderr"]), e["status"], e["fixed"]])
+    write_samples(result, paths["samples"])
     return paths
+
+
+def _cell(x):
+    return "" if x is None else repr(float(x))

@@ -1,145 +1,186 @@
-r"""Standard errors, correlations, identifiability and profile likelihoods.
+r"""Standard errors, correlations and identifiability at the optimum (Gauss–Newton).
 
-At the optimum $\hat p$ the Jacobian of the weighted residuals with respect to the free
-*natural* parameters is computed by forward-mode AD (`fitting._objective.log_jacobian`).
-It is evaluated as $J_\mathrm{rel} = \partial r/\partial\log p$ (well scaled: moduli in
-Pa and $\Delta\gamma$ in J/m² differ by many decades) and converted exactly:
-$\mathrm{cov}(p) = s^2\,\mathrm{diag}(p)\,(J_\mathrm{rel}^\top J_\mathrm{rel})^{-1}\,
-\mathrm{diag}(p) = s^2 (J^\top J)^{-1}$, with $s^2 = \chi^2/(m - n_\mathrm{free})$ the reduced
-$\chi^2$ ($m$: force samples plus event residuals). Standard errors are the square roots of
-the diagonal; the correlation matrix is the normalised covariance.
+At the optimum the Jacobian $J$ of the weighted residuals with respect to the internal
+coordinates $u$ of the free parameters (:mod:`fitting._parameters`: $u = \log p$, or $p/s$
+for the offsets) is exact (forward mode). With $s^2 = \chi^2/(m - k)$ the reduced
+$\chi^2$ ($m$ samples, $k$ free parameters not at a bound)
 
-Identifiability: an :class:`IdentifiabilityWarning` names a parameter when its relative
-standard error exceeds `max_relative_error` (default 0.5), or when $J_\mathrm{rel}^\top
-J_\mathrm{rel}$ has a condition number above `max_condition` (default $10^{10}$), naming the
-parameter that dominates the eigenvector of the smallest eigenvalue (the direction the
-data cannot see). Typical case: $\eta_1$ when the lift is much slower than the relaxation
-(the material is relaxed throughout and only $G_\infty$ matters).
+$$\mathrm{cov}(u) = s^2 (J^\top J)^{-1}, \qquad
+\mathrm{cov}(p) = D\,\mathrm{cov}(u)\,D,\quad D = \mathrm{diag}(\mathrm dp/\mathrm du).$$
 
-A free work of adhesion with no detaching curve is reported the same way, with an infinite
-standard error (:func:`detachment_message`): the data then bound $\Delta\gamma$ only from
-below, and the optimum sits on or above that bound, where the local standard error (often
-small) means nothing.
+When the residuals carry weights (a subsampled curve: $r_i = \sqrt{w_i}\,e_i/\sigma_i$, each
+kept sample standing for $w_i$ measured ones; :mod:`fitting._prepare`), the estimator is a
+weighted least-squares one on the kept samples, whose noise is that of single samples:
+its covariance is the sandwich $s^2 (J^\top J)^{-1} J^\top W J (J^\top J)^{-1}$ with
+$W = \mathrm{diag}(w)$ (which reduces to the above for $w = 1$), and $m = \sum w_i$.
+
+The inverse is taken through the eigen-decomposition $J^\top J = V\,\mathrm{diag}(w)\,V^\top$:
+$\mathrm{var}(u_i) = s^2\sum_k V_{ik}^2/w_k$. A direction with $w_k \le 10^{-14}\max w$ is one
+the data do not see; every parameter with a share in it ($V_{ik}^2 > 10^{-10}$) gets an
+infinite variance (dropping such directions instead would report tiny errors for exactly
+the parameters the data cannot determine).
+
+A parameter is reported *not determined* (an :class:`IdentifiabilityWarning` naming it,
+``status`` "not determined") when its relative standard error exceeds
+`max_relative_error` (0.5) — for an offset: its standard error exceeds half its scale —
+or when $J^\top J$ has a condition number above `max_condition` ($10^{10}$) and the
+parameter dominates the weakest direction (its standard error is then infinite). A
+parameter at a bound (:meth:`fitting._parameters.Parameterisation.at_bound`) is held there
+for the covariance and has no standard error (``status`` "at lower bound" / "at upper
+bound"). With fewer samples than free parameters nothing is determined. Typical cases:
+$\eta_1$ when the lift is much slower than the relaxation; $\Delta\gamma$ when no curve
+detaches and the contact front never recedes (the data then bound it only from below).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import warnings
 
-import jax.numpy as jnp
 import numpy as np
 
-from ._objective import CurveBatch, ModelSpec, log_jacobian
-
-__all__ = ["IdentifiabilityWarning", "detachment_message", "gauss_newton"]
+__all__ = ["IdentifiabilityWarning", "ModelValidityWarning", "Uncertainty", "gauss_newton"]
 
 
 class IdentifiabilityWarning(UserWarning):
     """The data cannot determine a parameter (named in the message)."""
 
 
-def _n_data(data: CurveBatch) -> int:
-    return int(np.sum(np.asarray(data.valid) > 0) + data.n_curves
-               + np.sum(np.asarray(data.has_jump)))
+class ModelValidityWarning(UserWarning):
+    """The fitted model is used outside its range of validity (the message says how)."""
 
 
-def detachment_message(data: CurveBatch, names, free) -> str | None:
-    """The identifiability message when the work of adhesion is free but no curve detaches.
+@dataclasses.dataclass
+class Uncertainty:
+    """Outcome of :func:`gauss_newton` (natural parameters; nan where not applicable).
 
-    Without a jump-off in the data the work of adhesion is bounded only from below (the
-    contact held at least until the end of the lift): the least-squares optimum sits on or
-    above that bound, and the local (Gauss–Newton) standard error means nothing. `None`
-    when the work of adhesion is fixed or some curve detaches.
+    **Fields:** `stderr` (p,), `covariance` (p, p), `correlation` (p, p), `status`
+    (per parameter: "ok", "fixed", "not determined", "at lower bound", "at upper bound"),
+    `chi2`, `reduced_chi2`, `n_data`, `dof`, `condition_number`, `warnings`.
+    """
+
+    stderr: np.ndarray
+    covariance: np.ndarray
+    correlation: np.ndarray
+    status: list[str]
+    chi2: float
+    reduced_chi2: float
+    n_data: int
+    dof: int
+    condition_number: float
+    warnings: list[str]
+
+
+def gauss_newton(param, u, r, J, names, *, n_data: int, weights=None,
+                 no_detachment: bool = False, max_relative_error: float = 0.5,
+                 max_condition: float = 1e10, warn: bool = True) -> Uncertainty:
+    """Gauss–Newton covariance at internal coordinates `u` (see the module docstring).
+
+    `param`: the `Parameterisation`; `r`, `J`: residuals and their Jacobian with respect
+    to the internal coordinates of ``param.free`` (in that order); `n_data`: number of
+    (measured) samples; `weights`: the weight $w_i$ of every residual (`None`: 1);
+    `no_detachment`: no curve detaches (named in the message about
+    $\\Delta\\gamma$).
     """
     names = list(names)
-    if "work_of_adhesion" not in names or names.index("work_of_adhesion") not in free:
-        return None
-    if np.any(np.asarray(data.has_jump) > 0):
-        return None
-    return ("work_of_adhesion is not determined by the data: no curve detaches (the force "
-            "never jumps back to zero after its most tensile value), so the data bound it "
-            "only from below; lift until the contact jumps off, or fix it "
-            "(fixed={'work_of_adhesion': value})")
-
-
-def gauss_newton(spec: ModelSpec, p, data: CurveBatch, free, names, *,
-                 max_relative_error: float = 0.5, max_condition: float = 1e10,
-                 warn: bool = True, jacobian=None) -> dict:
-    """Gauss–Newton covariance at natural parameters `p` for the `free` indices.
-
-    `jacobian`: optionally `(r, J)`, the residuals at `p` and their Jacobian with respect
-    to the log of the free parameters (e.g. from the optimiser's last step); computed
-    here (forward mode) when `None`.
-    """
-    p = np.asarray(p, dtype=float)
-    free = list(free)
-    if jacobian is None:
-        r, jac = log_jacobian(spec, tuple(free), jnp.log(jnp.asarray(p)), data)
-    else:
-        r, jac = jacobian
-        if np.shape(jac) != (np.size(r), len(free)):
-            raise ValueError(f"jacobian: J must have shape ({np.size(r)}, {len(free)}); "
-                             f"got {np.shape(jac)}")
-    r = np.asarray(r)
-    J = np.array(jac)
-    # a derivative that is not finite (the model fails next to the optimum) carries no
-    # information: that parameter is reported as undetermined, the others stay usable
-    bad = ~np.all(np.isfinite(J), axis=0)
-    J[:, bad] = 0.0
-    n_data = _n_data(data)
-    dof = max(n_data - len(free), 1)
-    chi2 = float(np.sum(r * r))
-    s2 = chi2 / dof
-    A = J.T @ J
-    w, V = np.linalg.eigh(A)
-    wmax = float(np.max(w)) if w.size else 0.0
-    cond = wmax / float(np.min(w)) if w.size and np.min(w) > 0 else np.inf
-    tiny = wmax * 1e-14
-    inv = (V / np.where(w > tiny, w, np.inf)) @ V.T
-    cov_rel = s2 * inv
-    pf = p[free]
-    var_rel = np.diag(cov_rel)
-    # relative standard errors (of log p); 0 variance: a direction the data cannot see
-    rel = np.where(var_rel > 0, np.sqrt(np.maximum(var_rel, 0.0)), np.inf)
-    k = len(p)
-    cov = np.full((k, k), np.nan)
-    stderr = np.full(k, np.nan)
-    with np.errstate(over="ignore", invalid="ignore"):  # a runaway parameter gives inf
-        cov[np.ix_(free, free)] = cov_rel * np.outer(pf, pf)
-        stderr[free] = pf * rel
-    corr = np.full((k, k), np.nan)
-    d = np.sqrt(np.maximum(var_rel, 1e-300))
-    corr[np.ix_(free, free)] = np.clip(cov_rel / np.outer(d, d), -1.0, 1.0)
-
+    u = np.asarray(u, dtype=float)
+    r = np.asarray(r, dtype=float)
+    J = np.array(J, dtype=float)
+    free = list(param.free)
+    if J.shape != (r.size, len(free)):
+        raise ValueError(f"J must have shape ({r.size}, {len(free)}); got {J.shape}")
+    k_all = len(u)
+    status = ["fixed"] * k_all
+    bound = param.at_bound(u)
+    active = []  # columns of J that are free and not at a bound
+    for col, i in enumerate(free):
+        if bound[i] is not None:
+            status[i] = f"at {bound[i]} bound"
+        else:
+            status[i] = "ok"
+            active.append(col)
     messages = []
-    no_jump = detachment_message(data, names, free)
-    if no_jump is not None:
-        # a lower bound only: no standard error
-        j = names.index("work_of_adhesion")
-        stderr[j] = np.inf
-        cov[j, :] = cov[:, j] = np.nan
-        messages.append(no_jump)
-    for i, j in enumerate(free):
-        if no_jump is not None and names[j] == "work_of_adhesion":
+    for i in free:
+        if bound[i] is not None:
+            messages.append(f"{names[i]} is at its {bound[i]} bound "
+                            f"({_bound_value(param, i, bound[i]):.4g}): the data push it "
+                            "there; no standard error")
+    Ja = J[:, active]
+    finite_col = np.all(np.isfinite(Ja), axis=0)
+    Ja[:, ~finite_col] = 0.0
+    chi2 = float(np.sum(r * r))
+    k = len(active)
+    dof = n_data - k
+    s2 = chi2 / dof if dof > 0 else math.inf
+    A = Ja.T @ Ja
+    W = np.ones(r.size) if weights is None else np.asarray(weights, dtype=float).ravel()
+    B = (Ja * W[:, None]).T @ Ja
+    var = np.full(k, np.inf)
+    cov_u = np.full((k, k), np.nan)
+    cond = math.inf
+    if k and dof > 0:
+        w, V = np.linalg.eigh(A)
+        wmax = float(np.max(w)) if w.size else 0.0
+        cond = wmax / float(np.min(w)) if np.min(w) > 0 else math.inf
+        seen = w > 1e-14 * wmax if wmax > 0 else np.zeros_like(w, dtype=bool)
+        inv_w = np.where(seen, 1.0 / np.where(seen, w, 1.0), 0.0)
+        a_inv = (V * inv_w) @ V.T
+        cov_u = s2 * a_inv @ B @ a_inv
+        blind = np.sum(V[:, ~seen] ** 2, axis=1) > 1e-10
+        var = np.where(blind, np.inf, np.diag(cov_u))
+        cov_u[blind, :] = np.nan
+        cov_u[:, blind] = np.nan
+        if cond > max_condition:
+            weakest = int(np.argmax(np.abs(V[:, 0])))
+            var[weakest] = np.inf
+            cov_u[weakest, :] = np.nan
+            cov_u[:, weakest] = np.nan
+    sd_u = np.sqrt(np.maximum(var, 0.0))
+    dp = param.dnatural(u)
+    cols = [free[c] for c in active]
+    stderr = np.full(k_all, np.nan)
+    cov = np.full((k_all, k_all), np.nan)
+    corr = np.full((k_all, k_all), np.nan)
+    with np.errstate(over="ignore", invalid="ignore"):
+        stderr[cols] = np.abs(dp[cols]) * sd_u
+        cov[np.ix_(cols, cols)] = cov_u * np.outer(dp[cols], dp[cols])
+        d = np.sqrt(np.where(np.isfinite(var) & (var > 0), var, np.nan))
+        corr[np.ix_(cols, cols)] = np.clip(cov_u / np.outer(d, d), -1.0, 1.0)
+    if dof <= 0:
+        messages.append(f"too few samples: {n_data} samples for {k} free parameters; "
+                        "nothing is determined")
+    for j, i in enumerate(cols):
+        # u = log p: sd(u) is the relative error; u = p/s: the error in units of the scale
+        rel = sd_u[j]
+        limit = max_relative_error
+        if dof > 0 and np.isfinite(rel) and rel <= limit and finite_col[j]:
             continue
-        if bad[i]:
-            messages.append(f"{names[j]} is not determined by the data: the derivative of the "
-                            "residuals with respect to it is not finite at the optimum")
-        elif not np.isfinite(rel[i]) or rel[i] > max_relative_error:
-            messages.append(
-                f"{names[j]} is not determined by the data: relative standard error "
-                f"{rel[i]:.3g} (> {max_relative_error:g})"
-            )
-    if cond > max_condition and w.size:
-        i = int(np.argmax(np.abs(V[:, 0])))
-        name = names[free[i]]
-        if not any(m.startswith(name + " ") for m in messages):
-            messages.append(
-                f"{name} is not determined by the data: the Gauss-Newton matrix has "
-                f"condition number {cond:.3g} and its weakest direction is mostly {name}"
-            )
+        status[i] = "not determined"
+        if dof <= 0:
+            continue
+        if not finite_col[j]:
+            why = "the derivative of the residuals with respect to it is not finite"
+        elif not np.isfinite(rel):
+            why = ("the residuals do not change along a direction that is mostly it"
+                   if cond <= max_condition else
+                   f"the Gauss-Newton matrix has condition number {cond:.3g} and its weakest "
+                   "direction is mostly it")
+        else:
+            what = "relative standard error" if param.log[i] else "standard error / scale"
+            why = f"{what} {rel:.3g} (> {limit:g})"
+        if names[i] == "work_of_adhesion" and no_detachment:
+            why += ("; no curve detaches, so the data bound it only from below: lift until "
+                    "the contact jumps off, or fix it")
+        messages.append(f"{names[i]} is not determined by the data: {why}")
     if warn:
         for m in messages:
             warnings.warn(m, IdentifiabilityWarning, stacklevel=3)
-    return dict(stderr=stderr, covariance=cov, correlation=corr, reduced_chi2=s2,
-                chi2=chi2, n_data=n_data, condition_number=cond, warnings=messages)
+    return Uncertainty(stderr=stderr, covariance=cov, correlation=corr, status=status,
+                       chi2=chi2, reduced_chi2=s2, n_data=int(n_data), dof=int(dof),
+                       condition_number=float(cond), warnings=messages)
+
+
+def _bound_value(param, i, which) -> float:
+    lim = float(np.asarray(param.lower if which == "lower" else param.upper)[i])
+    return math.exp(lim) if param.log[i] else lim * float(np.asarray(param.scale)[i])

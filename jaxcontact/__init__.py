@@ -70,6 +70,7 @@ from ._solution import RetractDetails as RetractDetails  # noqa: E402
 from ._foundation import FoundationState as FoundationState  # noqa: E402
 from ._validate import PLAUSIBLE as PLAUSIBLE  # noqa: E402
 from ._validate import plausibility_checks as plausibility_checks  # noqa: E402
+from ._validate import check_plausible as check_plausible  # noqa: E402
 from ._bem import BEMGrid as BEMGrid  # noqa: E402
 from ._bem import BEMSolution as BEMSolution  # noqa: E402
 from ._bem import bem_contact as bem_contact  # noqa: E402

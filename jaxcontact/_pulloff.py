@@ -351,7 +351,7 @@ def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact
     # the indenter must not go beyond the gap just outside the initial contact (infinite at
     # the edge of a bounded shape: a flat punch cannot advance); with the non-adhesive
     # initial radius that gap is the depth itself (no round-off from g(a0))
-    g_out = lax.stop_gradient(profile.g(jnp.nextafter(a0, jnp.inf)))
+    g_out = lax.stop_gradient(profile.g(jnp.nextafter(lax.stop_gradient(a0), jnp.inf)))
     touch = g_out if contact_radius is not None else jnp.maximum(depth, g_out)
     rel = max(1e-9, 64 * float(jnp.finfo(ts.dtype).eps))
     advancing = jnp.any(d > touch + rel * depth + 1e-15)

@@ -6,11 +6,12 @@ with an instrument file overrides the file's value and selects the compliant loa
 
 Order of work: every argument and input file is checked, the output folder is checked
 (it must be new, empty, or an earlier fit output: it is replaced, never mixed), the fit
-runs, and the report (``parameters.json``, ``parameters.csv``, ``fit.png``)
+runs, and the report (``parameters.json``, ``parameters.csv``, ``fit.csv``, ``fit.png``)
 is written into a temporary folder beside ``DIR`` and renamed into place: a failed or
 interrupted run leaves no file and no stale file. A fit that did not converge is written
 (marked ``"converged": false``) and exits with status 1. JAX's persistent compilation
-cache (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``) spares a second run the
+cache (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``; none when
+``$JAXCONTACT_NO_CACHE`` is set) spares a second run the
 compile.
 """
 
@@ -19,6 +20,7 @@ from __future__ import annotations
 import os
 import pathlib
 import sys
+import warnings
 
 from ._common import (
     OutputFolder,
@@ -99,6 +101,8 @@ def add_fit_arguments(parser):
 def _enable_cache():
     import jax
 
+    if os.environ.get("JAXCONTACT_NO_CACHE"):
+        return
     cache = os.environ.get("JAXCONTACT_CACHE") or str(
         pathlib.Path.home() / ".cache" / "jaxcontact" / "jax")
     try:
@@ -188,9 +192,7 @@ def run(args) -> int:
     options = dict(model=args.model, rheology=args.rheology, fixed=fixed or None,
                    bounds=bounds or None, initial=initial or None,
                    spring_constant=args.spring_constant, max_samples=args.max_samples,
-                   cells=args.cells, progress=not args.quiet)
-    if args.force_offset:
-        options["force_offset"] = True
+                   cells=args.cells, progress=not args.quiet, force_offset=args.force_offset)
     if args.starts is not None:
         options["n_starts"] = args.starts
     if args.contact_point is not None:
@@ -200,24 +202,30 @@ def run(args) -> int:
     else:
         options["profile"] = profile
     try:
-        result = fitting.fit(curves, **options)
+        with warnings.catch_warnings():
+            # the fit's warnings are in result.warnings: printed in the summary and written
+            # to parameters.json
+            warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
+            warnings.simplefilter("ignore", fitting.ModelValidityWarning)
+            result = fitting.fit(curves, **options)
     except ValueError as exc:
         raise UsageError(" ".join(str(exc).split())) from None
 
     staging = folder.stage()
     try:
-        fitting.write_report(result, staging, figure=not args.no_figure)
+        fitting.write_report(result, staging)
+        if not args.no_figure:
+            from ._plots import plot_fit
+
+            plot_fit(result, staging / "fit.png")
         out = folder.commit()
     finally:
         folder.discard()
     if not args.quiet:
-        for col, v, se in zip(result.columns, result.values, result.stderr, strict=True):
-            print(f"{col:>24} = {v:.6g} ± {se:.3g}")
-        print(f"{'r_squared':>24} = {result.r_squared:.6f}")
-        print(f"{'reduced_chi2':>24} = {result.reduced_chi2:.4g}")
+        print(result.summary())
         print(f"written to {out}")
     if not result.converged:
-        reason = "; ".join(result.warnings) or "the optimiser stopped before convergence"
+        reason = "the optimiser stopped before convergence (max steps or no further decrease)"
         print(f"jaxcontact fit: error: the fit did not converge ({reason}); the report in "
               f"{out} is marked \"converged\": false", file=sys.stderr)
         return 1

@@ -280,7 +280,7 @@ def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatc
     files = _fit_csvs(tmp_path)
     out = tmp_path / "result"
     rc = main(["fit", *files, "--radius", "10e-6", "--model", "relaxed", "--out", str(out),
-               "--quiet", "--no-figure", "--starts", "2"])
+               "--quiet", "--no-figure", "--starts", "8"])
     assert rc == 0
     text = (out / "parameters.json").read_text()
     table = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))

@@ -1,30 +1,36 @@
-"""Tests of the fitting package: objective, optimiser, uncertainty, report, CLI."""
+"""Fitting the relaxed-start model: objective, search, optimisers, uncertainty, report.
+
+The synthetic curves come from `jc.retract` (the forward model) with known parameters;
+every fit here uses 3 × 60 samples and 4 starts, so one compilation serves most tests.
+"""
 
 import json
-import pathlib
+import types
 import warnings
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import fitting
 import jaxcontact as jc
-from fitting._objective import make_spec, prepare_curves, residuals_natural
+from fitting import make_spec, prepare_curves, residuals
 
-R = 10e-6
+R = 12e-6  # relaxed contact radius sqrt(R D0) = 0.29 R: within the parabolic model
 D0 = 1e-6
-TRUE = {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 5e-3}
+TRUE = {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 1e-3}
+NAMES = ("G0", "G1", "eta1", "work_of_adhesion")
 SPEEDS = (0.5e-6, 2e-6, 8e-6)
-N = 150
+N = 60
+STARTS = 4
 
 
 def _rheology(p=TRUE):
     return jc.StandardModel(p["G0"], p["G1"], p["eta1"])
 
 
-def _curves(noise=0.0, seed=0, speeds=SPEEDS, lift=2.5e-6, p=TRUE, n=N):
+def _curves(noise=0.0, seed=0, speeds=SPEEDS, lift=3e-6, p=TRUE, n=N):
+    """Retract curves from a relaxed contact at D0; `noise` relative to the force range."""
     rng = np.random.default_rng(seed)
     out = []
     for v in speeds:
@@ -38,255 +44,332 @@ def _curves(noise=0.0, seed=0, speeds=SPEEDS, lift=2.5e-6, p=TRUE, n=N):
     return out
 
 
+def _fit(curves, **kw):
+    kw.setdefault("n_starts", STARTS)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
+        warnings.simplefilter("ignore", fitting.ModelValidityWarning)
+        return fitting.fit(curves, radius=R, progress=False, **kw)
+
+
 def _errors(res):
     return {k: abs(res[k] / v - 1) for k, v in TRUE.items()}
 
 
-@pytest.mark.parametrize("factor", [3.0, 1 / 3])
-def test_recovery_noiseless(factor):
-    res = fitting.fit(_curves(), radius=R, initial={k: v * factor for k, v in TRUE.items()},
-                      n_starts=1, progress=False)
+@pytest.fixture(scope="module")
+def noisy():
+    return _curves(noise=0.01, seed=1)
+
+
+@pytest.fixture(scope="module")
+def noisy_fit(noisy):
+    return _fit(noisy)
+
+
+def test_curves_detach_from_a_receding_front():
+    # the test data exercise the physics the fit must see: every curve detaches, after
+    # its front receded (contact radius below the relaxed one before the jump-off)
+    for c, v in zip(_curves(), SPEEDS, strict=True):
+        sol = jc.retract(_rheology(), jc.Parabola(R), depth=D0, ts=c.time, velocity=v,
+                         work_of_adhesion=TRUE["work_of_adhesion"])
+        assert np.isfinite(float(sol.jumpoff_time)) and float(sol.jumpoff_time) < c.time[-1]
+        a = np.asarray(sol.contact_radius)
+        assert np.any((a > 0) & (a < 0.99 * a[0]))
+
+
+@pytest.mark.parametrize("factor", [pytest.param(3.0, marks=pytest.mark.slow), 1 / 3])
+def test_recovery_noiseless_from_a_bad_guess(factor):
+    res = _fit(_curves(), initial={k: v * factor for k, v in TRUE.items()},
+               fixed={"G1": TRUE["G1"]} if factor < 1 else None)
     err = _errors(res)
-    assert max(err.values()) < 0.02, err
+    # Δγ is known to the resolution of the jump-off sample (see test_jump_resolution)
+    assert max(err.values()) < 0.01, err
     assert res.converged
     assert res.r_squared > 0.99999
+    if factor < 1:  # a fixed parameter stays at its value, without an error
+        i = res.names.index("G1")
+        assert res.values[i] == pytest.approx(TRUE["G1"], rel=1e-14)
+        assert res.fixed[i] and res.status[i] == "fixed"
+        assert np.isnan(res.stderr[i]) and res.n_free == 3
 
 
-def test_lbfgs_recovery_noiseless_and_agrees_with_lm():
-    """optax L-BFGS on the same objective reaches the Levenberg-Marquardt optimum."""
-    curves = _curves()
-    lm = fitting.fit(curves, radius=R, initial={k: v / 3 for k, v in TRUE.items()},
-                     n_starts=1, progress=False)
-    # from a guess 3x too small one start suffices; from 3x too large a single L-BFGS
-    # start ends in a local minimum (G1 -> 0), the default multi-start finds the optimum
-    for factor, starts in ((1 / 3, 1), (3.0, 4)):
-        lb = fitting.fit(curves, radius=R, initial={k: v * factor for k, v in TRUE.items()},
-                         n_starts=starts, progress=False, optimiser="lbfgs")
-        assert lb.optimiser == "lbfgs" and lm.optimiser == "lm"
-        err = _errors(lb)
-        assert max(err.values()) < 0.02, (factor, err)
-        assert lb.converged
-        # the optima agree far inside the statistical uncertainty of the parameters
-        assert lb.chi2 == pytest.approx(lm.chi2, rel=1e-5), factor
-        np.testing.assert_allclose(lb.values, lm.values, rtol=1e-4)
-        np.testing.assert_allclose(lb.stderr, lm.stderr, rtol=1e-2)
+def test_global_search_recovers_from_any_start():
+    # every start the search uses, and the data-based guess, lead to the optimum in most
+    # lanes; the best of them is the truth (noiseless)
+    res = _fit(_curves(), initial={k: v * 30 for k, v in TRUE.items()})
+    assert max(_errors(res).values()) < 0.01
+    losses = np.sort(res.start_losses)
+    assert losses[0] < 1e-6 * losses[-1] or losses[-1] < 1e-10
 
 
-def test_unknown_optimiser():
-    with pytest.raises(ValueError, match="optimiser"):
-        fitting.fit(_curves(n=20, speeds=(8e-6,)), radius=R, optimiser="adam", progress=False)
-
-
-def test_reused_jacobian_matches_fresh_gauss_newton():
-    """fit() reuses the optimiser's last Jacobian (converted from z to log p through the
-    bounds); the standard errors equal those of a fresh Gauss-Newton evaluation."""
-    from fitting._uncertainty import gauss_newton
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
-        res = fitting.fit(_curves(noise=0.01, seed=3), radius=R,
-                          initial={k: v * 2 for k, v in TRUE.items()},
-                          bounds={"G1": (1e3, 1e5), "eta1": (1e3, 1e5)}, n_starts=1,
-                          progress=False)
-        fresh = gauss_newton(res.spec, res.values, res.data, list(res.parameterisation.free),
-                             res.names, warn=False)
-    np.testing.assert_allclose(res.stderr, fresh["stderr"], rtol=1e-6)
-    np.testing.assert_allclose(res.correlation, fresh["correlation"], rtol=1e-6, atol=1e-9)
-    assert res.reduced_chi2 == pytest.approx(fresh["reduced_chi2"], rel=1e-9)
-
-
-def test_solve_batch_pool_matches_single_solves():
-    """The pool (2 lanes, 3 problems: lanes are refilled) gives each problem's own result."""
-    from fitting._optimise import make_parameterisation, solve, solve_batch
-
-    spec = make_spec()
-    problems = []
-    for seed, factor in ((4, 2.0), (5, 0.5), (6, 3.0)):
-        curves = _curves(noise=0.01, seed=seed, n=60)
-        data = prepare_curves(curves, spec, radius=R)
-        param = make_parameterisation(list(TRUE), {k: v * factor for k, v in TRUE.items()},
-                                      None, None)
-        z0 = jnp.asarray(param.z_of(np.asarray(param.reference)))[None]
-        problems.append((param, data, z0))
-    single = [solve(spec, pa, da, z0) for pa, da, z0 in problems]
-    params, datas = (jax.tree.map(lambda *x: jnp.stack(x), *[p[i] for p in problems])
-                     for i in (0, 1))
-    z0s = jnp.concatenate([p[2] for p in problems])
-    z, chi2, ok, steps = solve_batch(spec, params, datas, z0s, workers=2)
-    # (batched and unbatched linear algebra round differently: a step more or less)
-    for k, (zs, c, o, s) in enumerate(single):
-        assert abs(int(steps[k]) - int(s[0])) <= 2
-        assert bool(ok[k]) and bool(o[0])
-        assert float(chi2[k]) == pytest.approx(float(c[0]), rel=1e-7)
-        np.testing.assert_allclose(np.asarray(z[k]), np.asarray(zs[0]), atol=1e-4)
-    # the three problems are different: their optima differ by far more than that
-    assert np.ptp(np.asarray(chi2)) > 1.0
-
-
-def test_solve_batch_spread_over_devices_matches_one_device():
-    """Two CPU devices (a fresh process): 3 problems split 2 + 2 (the last repeated) in one
-    pmap call give the same results as one device's pool, in the problems' order."""
-    import subprocess
-    import sys
-
-    code = (
-        "import json, jax, jax.numpy as jnp, numpy as np\n"
-        "jax.config.update('jax_enable_x64', True)\n"
-        "jax.config.update('jax_num_cpu_devices', 2)\n"
-        "import sys; sys.path.insert(0, 'tests')\n"
-        "import test_fitting as T\n"
-        "from fitting._objective import make_spec, prepare_curves\n"
-        "from fitting._optimise import make_parameterisation, solve_batch\n"
-        "spec = make_spec(); probs = []\n"
-        "for seed, f in ((4, 2.0), (5, 0.5), (6, 3.0)):\n"
-        "    d = prepare_curves(T._curves(noise=0.01, seed=seed, n=60), spec, radius=T.R)\n"
-        "    p = make_parameterisation(list(T.TRUE), {k: v * f for k, v in T.TRUE.items()},\n"
-        "                              None, None)\n"
-        "    probs.append((p, d, jnp.asarray(p.z_of(np.asarray(p.reference)))[None]))\n"
-        "st = lambda *x: jnp.stack(x)\n"
-        "P = jax.tree.map(st, *[q[0] for q in probs]); D = jax.tree.map(st, *[q[1] for q in probs])\n"
-        "Z = jnp.concatenate([q[2] for q in probs])\n"
-        "two = solve_batch(spec, P, D, Z, workers=2)\n"
-        "one = solve_batch(spec, P, D, Z, workers=2, devices=jax.devices()[:1])\n"
-        "print(json.dumps(dict(n=jax.device_count(), two=[np.asarray(x).tolist() for x in two],\n"
-        "                      one=[np.asarray(x).tolist() for x in one])))\n"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, cwd=pathlib.Path(__file__).parent.parent)
-    res = json.loads(out.stdout.strip().splitlines()[-1])
-    assert res["n"] == 2
-    (z2, c2, ok2, s2), (z1, c1, ok1, s1) = res["two"], res["one"]
-    assert len(c2) == 3 and all(ok2) and all(ok1)
-    np.testing.assert_allclose(c2, c1, rtol=1e-9)
-    np.testing.assert_allclose(z2, z1, rtol=1e-7, atol=1e-9)
-    assert s2 == s1
-    assert np.ptp(c2) > 1.0  # three different problems, in their order
-
-
-def test_solve_batch_rejects_empty_devices():
-    from fitting._optimise import solve_batch
-
-    with pytest.raises(ValueError, match="devices"):
-        solve_batch(make_spec(), None, None, jnp.zeros((2, 4)), devices=[])
-
-
-def test_recovery_noisy():
-    res = fitting.fit(_curves(noise=0.01, seed=1), radius=R,
-                      initial={k: v * 3 for k, v in TRUE.items()}, n_starts=1, progress=False)
-    err = _errors(res)
-    assert max(err.values()) < 0.05, err
+def test_recovery_noisy_within_standard_errors(noisy_fit):
+    res = noisy_fit
+    assert max(_errors(res).values()) < 0.05
     assert 0.7 < res.reduced_chi2 < 1.3
-    # the truth lies within 4 standard errors
     for k, v in TRUE.items():
         i = res.names.index(k)
+        assert res.status[i] == "ok"
         assert abs(res.values[i] - v) < 4 * res.stderr[i], (k, res.values[i], res.stderr[i])
 
 
-def test_residuals_at_truth_small_and_continuous():
-    spec = make_spec()
-    data = prepare_curves(_curves(), spec, radius=R)
-    p = jnp.array([TRUE[k] for k in ("G0", "G1", "eta1", "work_of_adhesion")])
-    r = residuals_natural(p, data, spec)
-    assert float(jnp.sum(r * r)) < 1.0
-    # continuity across the jump-off: a scan of Δγ gives no jumps in chi2 bigger than the
-    # local trend (the ramp weight switches samples off continuously)
-    scale = np.linspace(0.97, 1.03, 61)
-    chi2 = np.array([float(jnp.sum(residuals_natural(p.at[3].multiply(s), data, spec) ** 2))
-                     for s in scale])
-    # the scan is finite, has its minimum at the truth and rises on both sides
-    assert np.all(np.isfinite(chi2))
-    # (the event residuals bias the noiseless optimum of Δγ by ~0.2 %, i.e. 2 scan steps)
-    i = int(np.argmin(chi2))
-    assert abs(i - 30) <= 3
-    assert np.all(np.diff(chi2[i + 1:]) > 0) and np.all(np.diff(chi2[:i]) < 0)
+@pytest.mark.slow
+def test_lbfgs_reaches_the_lm_optimum(noisy, noisy_fit):
+    lb = _fit(noisy, optimiser="lbfgs")
+    assert lb.optimiser == "lbfgs" and noisy_fit.optimiser == "lm"
+    assert lb.converged
+    # the same optimum, far inside the statistical uncertainty (L-BFGS may stop a little
+    # early at a kink of the piecewise-smooth loss, where a sample interval begins)
+    assert lb.chi2 == pytest.approx(noisy_fit.chi2, rel=1e-3)
+    assert np.all(np.abs(lb.values - noisy_fit.values) < 0.2 * noisy_fit.stderr)
+    np.testing.assert_allclose(lb.stderr, noisy_fit.stderr, rtol=0.05)
 
 
-def test_fixed_parameters_stay_fixed():
-    res = fitting.fit(_curves(), radius=R, initial={k: v * 3 for k, v in TRUE.items()},
-                      fixed={"G1_Pa": 6e3}, n_starts=1, progress=False)
-    i = res.names.index("G1")
-    assert res.values[i] == pytest.approx(6e3, rel=1e-12)
-    assert res.fixed[i] and np.isnan(res.stderr[i])
-    assert res.n_free == 3
+def test_bad_options_name_the_argument():
+    c = _curves(n=20, speeds=(8e-6,))
+    for kw, needle in (({"optimiser": "adam"}, "optimiser"), ({"n_starts": 0}, "n_starts"),
+                       ({"contact_point": "guess"}, "contact_point"),
+                       ({"rheology": "prony:0"}, "prony:N"),
+                       ({"spring_constant": -1.0, "model": "history"}, "spring_constant"),
+                       ({"bounds": {"G0": (5.0, 1.0)}}, "bounds for 'G0'"),
+                       ({"fixed": {"G9": 1.0}}, "fixed: unknown parameter"),
+                       ({"initial": {"eta1": -1.0}}, "'eta1' must be finite")):
+        with pytest.raises(ValueError, match=needle):
+            fitting.fit(c, radius=R, progress=False, **kw)
+    with pytest.raises(ValueError, match="either radius or profile"):
+        fitting.fit(c, radius=R, profile=jc.Parabola(R), progress=False)
 
 
-def test_bounds_respected():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
-        res = fitting.fit(_curves(), radius=R, initial={k: v * 3 for k, v in TRUE.items()},
-                          bounds={"eta1": (1e3, 5e3)}, n_starts=1, progress=False)
-    assert 1e3 * (1 - 1e-9) <= res["eta1"] <= 5e3 * (1 + 1e-9)
+def test_reused_jacobian_matches_a_fresh_one(noisy_fit):
+    """fit() reuses the search's last Jacobian (converted from z to the internal
+    coordinates through the bounds); a fresh forward-mode Jacobian at the optimum gives
+    the same standard errors."""
+    from fitting._objective import internal_jacobian
+    from fitting._uncertainty import gauss_newton
+
+    res = noisy_fit
+    param = res.parameterisation
+    u = param.to_internal(res.values)
+    r, J = internal_jacobian(res.spec, param, jnp.asarray(u), res.data)
+    fresh = gauss_newton(param, u, r, J, res.names, n_data=res.n_data,
+                         weights=np.asarray(res.data.weight).ravel(), warn=False)
+    np.testing.assert_allclose(res.stderr, fresh.stderr, rtol=1e-5)
+    np.testing.assert_allclose(res.correlation, fresh.correlation, rtol=1e-5, atol=1e-8)
+    assert res.reduced_chi2 == pytest.approx(fresh.reduced_chi2, rel=1e-9)
 
 
 def test_stderr_against_monte_carlo():
     """Gauss-Newton standard errors agree with the scatter of refits of noisy copies."""
-    clean = _curves(n=60, speeds=(1e-6, 4e-6))
+    clean = _curves()
     fits = []
     for seed in range(12):
-        noisy = [c.replace(force=c.force + 0.01 * np.ptp(c.force)
-                           * np.random.default_rng(100 + seed).standard_normal(len(c)))
+        rng = np.random.default_rng(100 + seed)
+        noisy = [c.replace(force=c.force + 0.01 * np.ptp(c.force) * rng.standard_normal(len(c)))
                  for c in clean]
-        res = fitting.fit(noisy, radius=R, initial=TRUE, n_starts=1, progress=False)
+        res = _fit(noisy, initial=TRUE)
         fits.append(np.log(res.values))
         if seed == 0:
             rel_se = res.stderr / res.values
     scatter = np.std(np.array(fits), axis=0, ddof=1)
     ratio = rel_se / scatter
-    # 12 samples: the scatter itself is uncertain by ~20 %; measured ratios 0.8-2.3 (the
-    # Gauss-Newton errors are conservative here, see the report)
-    assert np.all((ratio > 0.5) & (ratio < 3.0)), ratio
+    # 12 refits: the scatter itself is uncertain by ~20 %
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+
+
+def test_parameter_at_a_bound_is_reported_not_crashed(tmp_path):
+    # eta1 confined far below the truth: the data push it to the upper bound
+    res = _fit(_curves(noise=0.01, seed=2), bounds={"eta1": (1e2, 1e3)})
+    i = res.names.index("eta1")
+    assert res["eta1"] == pytest.approx(1e3, rel=1e-3)
+    assert res.status[i] == "at upper bound" and np.isnan(res.stderr[i])
+    assert any(w.startswith("eta1 is at its upper bound") for w in res.warnings)
+    assert res.n_free == 3
+    table = json.loads(fitting.write_report(res, tmp_path)["json"].read_text())
+    assert table["eta1_Pa_s"]["stderr"] is None
+    assert table["eta1_Pa_s"]["status"] == "at upper bound"
 
 
 def test_identifiability_warning_eta1():
     """Lift much slower than the relaxation: eta1 cannot be determined."""
     slow = dict(TRUE, eta1=TRUE["eta1"] * 1e-4)  # tau = 50 µs, lift ~ 1 s
-    curves = _curves(noise=0.01, speeds=(2e-6, 3e-6), p=slow, n=60)
+    curves = _curves(noise=0.01, speeds=(2e-6, 3e-6, 4e-6), p=slow)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = fitting.fit(curves, radius=R, initial=slow, n_starts=1, progress=False)
+        res = fitting.fit(curves, radius=R, initial=slow, n_starts=STARTS, progress=False)
+    assert any(issubclass(w.category, fitting.ModelValidityWarning) for w in caught)
     messages = [str(w.message) for w in caught
                 if issubclass(w.category, fitting.IdentifiabilityWarning)]
+    i = res.names.index("eta1")
     assert any(m.startswith("eta1 ") for m in messages), messages
-    assert any("eta1" in w for w in res.warnings)
+    # never a confident number: either its error is large or it is at its bound
+    assert res.status[i] != "ok"
+    assert not (np.isfinite(res.stderr[i]) and res.stderr[i] < 0.5 * res.values[i])
 
 
-def test_report_files(tmp_path):
-    res = fitting.fit(_curves(), radius=R, initial=TRUE, n_starts=2, progress=False)
+def test_too_few_samples_is_not_a_confident_fit(noisy_fit):
+    # 3 samples for 4 free parameters: nothing is determined (a fit used to report
+    # R² = 1 with relative errors of 1e-15)
+    from fitting._uncertainty import gauss_newton
+
+    param = noisy_fit.parameterisation
+    u = param.to_internal(noisy_fit.values)
+    J = np.random.default_rng(0).standard_normal((3, 4))
+    unc = gauss_newton(param, u, np.zeros(3), J, noisy_fit.names, n_data=3, warn=False)
+    assert unc.status == ["not determined"] * 4
+    assert np.all(np.isinf(unc.stderr) | np.isnan(unc.stderr))
+    assert any("too few samples" in w for w in unc.warnings)
+
+
+def test_blind_direction_gets_an_infinite_error(noisy_fit):
+    # a column of J that is a combination of others: the data see only the combination;
+    # both parameters get an infinite error (dropping the direction would report tiny
+    # ones), the others keep theirs
+    from fitting._uncertainty import gauss_newton
+
+    param = noisy_fit.parameterisation
+    u = param.to_internal(noisy_fit.values)
+    rng = np.random.default_rng(1)
+    J = rng.standard_normal((50, 4))
+    J[:, 2] = 2.0 * J[:, 1]
+    r = 0.1 * rng.standard_normal(50)
+    unc = gauss_newton(param, u, r, J, noisy_fit.names, n_data=50, warn=False)
+    assert np.isinf(unc.stderr[1]) and np.isinf(unc.stderr[2])
+    assert np.isfinite(unc.stderr[0]) and np.isfinite(unc.stderr[3])
+    assert unc.status == ["ok", "not determined", "not determined", "ok"]
+
+
+def test_residuals_at_truth_vanish_and_are_continuous(noisy):
+    spec = make_spec()
+    data = prepare_curves(_curves(), spec, radius=R)
+    p = jnp.array([TRUE[k] for k in NAMES])
+    r = residuals(p, data, spec)
+    assert r.shape == (3 * N,)
+    # at the truth only the two samples at each jump-off are not exactly matched (the model
+    # resolves its jump inside the sample interval): |r| <= sqrt(12) there (their noise
+    # carries the jump / sqrt(12), see fitting._prepare), round-off elsewhere
+    a = np.abs(np.asarray(r))
+    assert np.max(a) <= np.sqrt(12.0) + 1e-6
+    assert np.sum(a > 1e-6) <= 2 * 3
+    # continuity in Δγ across the jump-offs (noisy data, realistic weights): refining the
+    # scan tenfold shrinks the largest change between neighbours about tenfold; a jump
+    # of the loss would not shrink
+    data = prepare_curves(noisy, spec, radius=R)
+
+    def chi2(scales):
+        return np.array([float(jnp.sum(residuals(p.at[3].multiply(s), data, spec) ** 2))
+                         for s in scales])
+
+    coarse = chi2(np.linspace(0.96, 1.04, 41))
+    fine = chi2(np.linspace(0.96, 1.04, 401))
+    assert np.all(np.isfinite(fine))
+    assert np.max(np.abs(np.diff(fine))) < 0.25 * np.max(np.abs(np.diff(coarse)))
+
+
+def _step_solution(ts, force, t_jump):
+    # a forward solution whose force is `force` until `t_jump` and 0 after
+    f = np.where(ts < t_jump, force, 0.0)
+    j = np.interp(t_jump, ts, force)
+    return types.SimpleNamespace(force=jnp.asarray(f)[None],
+                                 jumpoff_time=jnp.asarray([t_jump]),
+                                 jumpoff_force=jnp.asarray([j]))
+
+
+def test_early_jumpoff_never_lowers_the_loss():
+    """Every sample counts: with data that detach at t_d, a model identical to the data
+    but detaching at any earlier time t* < t_d has a larger loss, the more so the earlier
+    (under the old ramp objective the samples after the model's jump-off were dropped)."""
+    spec = make_spec()
+    n = 200
+    ts = np.linspace(0.0, 1.0, n)
+    attached = -1e-7 * (1.0 + ts)  # an adhesive (tensile) force
+    t_d = 0.8037
+    f = np.where(ts < t_d, attached, 0.0)
+    curve = fitting.Curve(time=ts, displacement=1e-6 * (1 - ts), force=f + 1e-10 * np.sin(ts),
+                          segment=np.zeros(n, int), segment_names=("retract",))
+    data = prepare_curves([curve], spec, radius=R)
+    loss = []
+    grid = np.linspace(0.3, t_d, 400)
+    for t_star in grid:
+        model = fitting.effective_force(_step_solution(ts, attached, t_star), data)
+        r = np.asarray(jnp.sqrt(data.weight) * (model - data.force) / data.noise)
+        loss.append(float(np.sum(r * r)))
+    loss = np.array(loss)
+    assert np.all(np.diff(loss) <= 1e-9 * loss.max()), "moving t* earlier lowered the loss"
+    assert loss[0] > 100 * loss[-1]
+    # and the loss is continuous in t* (no step where t* crosses a sample)
+    assert np.max(np.abs(np.diff(loss))) < 0.02 * (loss.max() - loss.min())
+
+
+def test_jump_resolution_in_the_standard_error():
+    """The jump-off time is known from point samples only to the sampling interval; the
+    two samples at the measured jump carry that in their noise, so a pinned jump-off does
+    not give Δγ a precision the samples lack. Refits of noisy copies: the truth lies within
+    3 standard errors of Δγ in every refit."""
+    for seed in range(4):
+        res = _fit(_curves(noise=0.01, seed=20 + seed), initial=TRUE)
+        i = res.names.index("work_of_adhesion")
+        assert abs(res.values[i] - TRUE["work_of_adhesion"]) < 3 * res.stderr[i]
+
+
+def test_select_samples_keeps_the_structure():
+    from fitting._prepare import sample_weights
+
+    n = 5000
+    f = np.r_[np.linspace(0, 1, 2000), np.exp(-np.linspace(0, 5, 2000)), np.zeros(1000)]
+    seg = np.r_[np.zeros(2000, int), np.ones(2000, int), 2 * np.ones(1000, int)]
+    pick = fitting.select_samples(f, seg, 200, keep=[4200, 4201])
+    assert pick.size <= 210 and np.all(np.diff(pick) > 0)
+    for i in (0, 1999, 2000, 3999, 4000, 4999, 4200, 4201):
+        assert i in pick
+    # denser where the force changes fast (start of the relaxation) than on the flat tail
+    dense = np.sum((pick >= 2000) & (pick < 2400))
+    flat = np.sum((pick >= 4500) & (pick < 4900))
+    assert dense > 2 * flat
+    w = sample_weights(pick, n)
+    assert w.sum() == n and np.all(w >= 1)
+
+
+def test_report_files_and_summary(noisy_fit, tmp_path):
+    res = noisy_fit
     paths = fitting.write_report(res, tmp_path / "out")
     table = json.loads(paths["json"].read_text())
     for key in ("G0_Pa", "G1_Pa", "eta1_Pa_s", "work_of_adhesion_J_m2"):
-        assert set(table[key]) >= {"value", "stderr"}
-    for key in ("r_squared", "reduced_chi2", "correlation", "G_inf_Pa", "tau_s"):
+        assert set(table[key]) >= {"value", "stderr", "relative_stderr", "status"}
+    for key in ("r_squared", "r_squared_contact", "reduced_chi2", "aic", "bic", "correlation",
+                "G_inf_Pa", "tau_s", "start_losses", "model_selection"):
         assert key in table
-    assert table["G0_Pa"]["value"] == pytest.approx(TRUE["G0"], rel=0.02)
     rows = paths["csv"].read_text().splitlines()
-    assert rows[0] == "parameter,unit,value,stderr,relative_stderr,fixed"
+    assert rows[0] == "parameter,unit,value,stderr,relative_stderr,status,fixed"
     assert len(rows) == 5
-    assert paths["figure"].stat().st_size > 1000
-    assert len(res.start_losses) == 2
+    samples = paths["samples"].read_text().splitlines()
+    assert samples[0] == ("curve,segment,time_s,indentation_m,force_N,model_force_N,residual,"
+                          "weight,contact_radius_m")
+    assert len(samples) == 1 + 3 * N
+    # fit.csv reproduces chi2: sum of weight * residual^2
+    arr = np.array([[float(x) for x in line.split(",")[2:]] for line in samples[1:]])
+    assert np.sum(arr[:, 5] * arr[:, 4] ** 2) == pytest.approx(res.chi2, rel=1e-9)
+    text = str(res)
+    assert "G0_Pa" in text and "R^2 (in contact)" in text and len(text.splitlines()) < 30
+    assert "G0=" in repr(res)
 
 
-def test_oocyte_history_fit():
-    """The real oocyte curve (approach, 30 s hold, retract) with the full-history model
-    (~1.5-3 min cold on 2 cores; R = 40 um is an assumption, the file has no probe radius)."""
-    path = pathlib.Path(__file__).parent / "data" / "oocyte-stress-relaxation-cell1-0008.jpk-force"
-    pytest.importorskip("afmformats")
-    curve = fitting.load_afm(path)[0]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
-        res = fitting.fit(curve, radius=40e-6, model="history", n_starts=2, max_samples=100,
-                          progress=False)
-    assert res.r_squared > 0.8
+def test_r_squared_in_contact_excludes_the_free_tail(noisy_fit):
+    # the samples after the jump-off, where data and model are free, are not in contact;
+    # R² in contact is R² over the others (each kept sample weighted)
+    res = noisy_fit
+    mask = res.in_contact
+    after = np.asarray(res.model_solution.contact_radius) == 0
+    sigma = np.asarray(res.data.sigma)[:, None]
+    free_tail = after & (np.abs(np.asarray(res.data.force)) < 3 * sigma)
+    assert free_tail.sum() > 20 and not np.any(mask & free_tail)
+    f, m = np.asarray(res.data.force)[mask], res.model_force[mask]
+    w = np.asarray(res.data.weight)[mask]
+    mean = np.sum(w * f) / np.sum(w)
+    r2 = 1 - np.sum(w * (m - f) ** 2) / np.sum(w * (f - mean) ** 2)
+    assert res.r_squared_contact == pytest.approx(r2, rel=1e-12)
 
 
-def test_hertz_modulus_parabola_fast_path():
-    # the float-only parabola path of the initial guess against the general (JAX) path for
-    # the same shape written as a power law, and against Hertz: F = (16/3) G sqrt(R) d^1.5
-    from fitting._objective import _hertz_modulus
-
-    force, depth = 3.7e-7, 0.8e-6
-    g_fast, a_fast = _hertz_modulus(force, depth, jc.Parabola(R))
-    g_gen, a_gen = _hertz_modulus(force, depth, jc.PowerLaw(1.0 / (2.0 * R), 2.0))
-    assert a_fast == pytest.approx(a_gen, rel=1e-12)
-    assert g_fast == pytest.approx(g_gen, rel=1e-10)
-    assert g_fast == pytest.approx(force / (16.0 / 3.0 * np.sqrt(R) * depth**1.5), rel=1e-12)
+def test_validity_warnings():
+    with pytest.warns(fitting.ModelValidityWarning, match="no curve has a hold"):
+        res = fitting.fit(_curves(), radius=R, n_starts=STARTS, progress=False)
+    assert any("no curve has a hold" in w for w in res.warnings)
+    assert not any("contact radius reaches" in w for w in res.warnings)  # a0 = 0.29 R

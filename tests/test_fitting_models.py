@@ -14,11 +14,12 @@ import csv
 import json
 import logging
 import pathlib
+import warnings
 
 import jax
 import numpy as np
 import pytest
-from test_fitting import D0, TRUE, R, _curves
+from test_fitting import D0, STARTS, TRUE, R, _curves, _fit
 
 import fitting
 import jaxcontact as jc
@@ -74,8 +75,8 @@ def _read_outputs(out):
 
 @pytest.fixture(scope="module")
 def noisy_fit():
-    curves = _relaxed_curves(4.5e-6, noise=0.01, seed=3)
-    return fitting.fit(curves, radius=R, initial=TRUE, n_starts=1, progress=False)
+    curves = _relaxed_curves(3e-6, noise=0.01, seed=3, speeds=(0.5e-6, 2e-6, 8e-6))
+    return _fit(curves, initial=TRUE)
 
 
 def test_profile_likelihood_curvature_and_refits(noisy_fit, caplog):
@@ -93,16 +94,13 @@ def test_profile_likelihood_curvature_and_refits(noisy_fit, caplog):
     # ... and increasing on both sides
     assert dchi[0] > dchi[1] > dchi[2] and dchi[4] > dchi[3] > dchi[2]
     # curvature: (delta/sigma)^2 for a locally linear model, i.e. 1 at one and 4 at two
-    # standard errors; within 15 % (measured 0.95-0.98). (The profile of the work of
-    # adhesion is not quadratic: below the optimum the ramp switches off the samples the
-    # earlier model jump-off passes, and it rises about half as fast.)
+    # standard errors; within 15 %
     np.testing.assert_allclose(dchi[[1, 3]], 1.0, rtol=0.15)
     np.testing.assert_allclose(dchi[[0, 4]], 4.0, rtol=0.15)
     # the profiled parameter is held at its value, the others are refitted
     np.testing.assert_allclose(prof["others"][:, i], v + offsets * s, rtol=1e-12)
     # a direct fit with the parameter fixed finds the same other parameters and chi2
-    direct = fitting.fit(res.curves, radius=R, initial=res.as_dict(),
-                         fixed={name: float(v + s)}, n_starts=1, progress=False)
+    direct = _fit(res.curves, initial=res.as_dict(), fixed={name: float(v + s)})
     np.testing.assert_allclose(prof["others"][3], direct.values, rtol=1e-5)
     np.testing.assert_allclose(prof["chi2"][3], direct.chi2, rtol=1e-6)
     # one compilation serves other values (same count): no new compile on a second call
@@ -129,60 +127,27 @@ def test_profile_likelihood_bad_input(noisy_fit):
 # --------------------------------------------------------------------------------------
 
 
-def test_no_detachment_names_the_work_of_adhesion():
-    # lifts of 1.2 um from 1 um: the contact holds (jump-off after 3.7 and 2.1 um of lift)
-    curves = _relaxed_curves(1.2e-6)
+def test_no_detachment_is_not_a_confident_work_of_adhesion():
+    # lifts of 0.6 um from 1 um: the contact stays pinned and holds; the force in the
+    # pinned phase does not depend on the work of adhesion, so the data bound it only from
+    # below: it must be reported as not determined (or at its bound), never with a small
+    # error bar, and the moduli (which the pinned contact determines) are kept
+    curves = _relaxed_curves(0.6e-6, speeds=(0.5e-6, 2e-6, 8e-6))
     for c in curves:
         assert c.force[-1] == np.min(c.force) < 0  # still loaded, most tensile at the end
-    # Before: from a low guess the fit sat on the lower bound of the work of adhesion (0.39
-    # of the truth) with a 0.1 % standard error and no warning. Now the message names it
-    # and why; its standard error is infinite, the moduli (which the pinned contact
-    # determines) are kept.
-    with pytest.warns(fitting.IdentifiabilityWarning,
-                      match=r"work_of_adhesion is not determined by the data: no curve "
-                            r"detaches") as caught:
-        res = fitting.fit(curves, radius=R, initial={k: v / 3 for k, v in TRUE.items()},
-                          n_starts=1, progress=False)
-    assert len(caught) == 1, [str(w.message) for w in caught]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = fitting.fit(curves, radius=R, n_starts=STARTS, progress=False)
     i = res.names.index("work_of_adhesion")
-    assert res.stderr[i] == np.inf and np.all(np.isnan(res.covariance[i]))
-    assert any("no curve detaches" in w for w in res.warnings)
+    assert res.status[i] != "ok"
+    assert not (np.isfinite(res.stderr[i]) and res.stderr[i] < 0.5 * res.values[i])
+    msgs = [str(w.message) for w in caught if issubclass(w.category,
+                                                         fitting.IdentifiabilityWarning)]
+    assert any(m.startswith("work_of_adhesion ") and "no curve detaches" in m
+               for m in msgs) or res.status[i].startswith("at "), msgs
     for k in ("G0", "G1", "eta1"):
         assert res[k] == pytest.approx(TRUE[k], rel=0.01), k
-        assert np.isfinite(res.stderr[res.names.index(k)])
-    # the message depends on the free work of adhesion and on no curve detaching
-    from fitting._objective import make_spec, prepare_curves
-    from fitting._uncertainty import detachment_message
-
-    names = list(TRUE)
-    assert detachment_message(res.data, names, [0, 1, 2]) is None
-    assert "no curve detaches" in detachment_message(res.data, names, [0, 1, 2, 3])
-    both = prepare_curves([*curves, _relaxed_curves(4.5e-6, speeds=(4e-6,))[0]], make_spec(),
-                          radius=R)
-    assert detachment_message(both, names, [0, 1, 2, 3]) is None
-
-
-def test_early_model_jumpoff_is_penalised():
-    """A curve that ends attached gets a one-sided jump-off residual."""
-    from fitting._objective import make_spec, prepare_curves, residuals_natural
-
-    spec = make_spec()
-    detaching = _relaxed_curves(4.5e-6, speeds=(4e-6,))[0]
-    holding = _relaxed_curves(1.2e-6, speeds=(4e-6,))[0]
-    data = prepare_curves([detaching, holding], spec, radius=R)
-    np.testing.assert_array_equal(np.asarray(data.has_jump), [1.0, 0.0])
-    np.testing.assert_array_equal(np.asarray(data.attached_end), [0.0, 1.0])
-    truth = np.array([TRUE[k] for k in ("G0", "G1", "eta1", "work_of_adhesion")])
-    r = np.asarray(residuals_natural(truth, data, spec))
-    assert r[-1] == 0.0  # the true model holds beyond the end of the second curve
-    weak = truth * np.array([1, 1, 1, 0.3])
-    sol = jc.retract(jc.StandardModel(*truth[:3]), jc.Parabola(R),
-                     work_of_adhesion=weak[3], depth=D0, ts=holding.time, velocity=4e-6)
-    jd = float(sol.jumpoff_displacement)
-    assert jd > holding.displacement[-1]  # this model detaches inside the second curve
-    r_weak = np.asarray(residuals_natural(weak, data, spec))
-    expected = (jd - holding.displacement[-1]) / float(data.jump_sigma[1])
-    assert r_weak[-1] == pytest.approx(expected, rel=1e-9)
+        assert res.status[res.names.index(k)] == "ok"
 
 
 def test_nan_data_rejected(tmp_path, capsys):
@@ -207,46 +172,70 @@ def test_nan_data_rejected(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------------------
-# Prony series (relaxed model, two arms, three lift speeds)
+# Prony series, nested models, model choice (relaxed model, three lift speeds)
 # --------------------------------------------------------------------------------------
 
 PRONY = {"G_inf": 4e3, "G_1": 6e3, "G_2": 3e3, "tau_1": 0.05, "tau_2": 2.0,
          "work_of_adhesion": 5e-3}
 
 
-@pytest.fixture(scope="module")
-def prony_curves():
-    # relaxation times 40x apart; lifts of 4 um last 8 s, 2 s and 0.5 s (jump-off after
-    # 3.7, 2.8 and 2.3 um): the slow lift sees tau_2, the fast one tau_1
+def _prony_curves(noise=0.0, seed=0):
+    # relaxation times 40x apart; lifts of 4 um last 8 s, 2 s and 0.5 s: the slow lift sees
+    # tau_2, the fast one tau_1
     rheology = jc.PronySeries(PRONY["G_inf"], np.array([PRONY["G_1"], PRONY["G_2"]]),
                               np.array([PRONY["tau_1"], PRONY["tau_2"]]))
+    rng = np.random.default_rng(seed)
     out = []
     for v in (0.5e-6, 2e-6, 8e-6):
-        ts = np.linspace(0.0, 4e-6 / v, 100)
+        ts = np.linspace(0.0, 4e-6 / v, 60)
         sol = jc.retract(rheology, jc.Parabola(R), work_of_adhesion=PRONY["work_of_adhesion"],
                          depth=D0, ts=ts, velocity=v)
         assert np.isfinite(float(sol.jumpoff_time))
+        f = np.asarray(sol.force)
         out.append(fitting.Curve(time=ts, displacement=np.asarray(sol.displacement),
-                                 force=np.asarray(sol.force), segment=np.zeros(100, int),
-                                 segment_names=("retract",)))
+                                 force=f + noise * np.ptp(f) * rng.standard_normal(60),
+                                 segment=np.zeros(60, int), segment_names=("retract",)))
     return out
 
 
-def test_prony_fit_recovers_parameters(prony_curves):
-    spec = fitting.make_spec("relaxed", "prony:2")
-    guess = fitting.initial_guess(prony_curves, spec, jc.Parabola(R))
-    # the data-derived guess is well off (G_1 and tau_2 by a factor 2)
-    assert max(abs(np.log(guess[k] / v)) for k, v in PRONY.items()) > np.log(1.9)
-    res = fitting.fit(prony_curves, radius=R, rheology="prony:2", n_starts=1, progress=False)
+@pytest.fixture(scope="module")
+def prony_curves():
+    return _prony_curves(noise=0.005, seed=11)
+
+
+@pytest.fixture(scope="module")
+def auto_fit(prony_curves):
+    return _fit(prony_curves, rheology="auto")
+
+
+def test_auto_chooses_the_true_model_and_nested_fits_never_get_worse(auto_fit):
+    res = auto_fit
+    names = [m.rheology for m in res.model_selection]
+    assert names == ["standard", "prony:2", "prony:3"]
+    chi2 = {m.rheology: m.chi2 for m in res.model_selection}
+    # each richer model contains the simpler one and starts from its optimum
+    # never worse than the model it contains (to the 2e-6 G_H arm of the nested start)
+    assert chi2["prony:2"] <= chi2["standard"] * (1 + 1e-4)
+    assert chi2["prony:3"] <= chi2["prony:2"] * (1 + 1e-4)
+    # two arms generated the data: BIC picks prony:2 (prony:3 gains less than its penalty)
+    assert res.rheology == "prony:2" and [m.chosen for m in res.model_selection] == [
+        False, True, False]
+    bic = {m.rheology: m.bic for m in res.model_selection}
+    assert bic["prony:2"] < bic["standard"] - 10
+    assert "model selection" in str(res)
+
+
+def test_prony_fit_recovers_parameters(auto_fit, prony_curves):
+    res = auto_fit
     assert res.names == list(PRONY)
     assert res.columns == ["G_inf_Pa", "G_1_Pa", "G_2_Pa", "tau_1_s", "tau_2_s",
                            "work_of_adhesion_J_m2"]
-    err = {k: abs(res[k] / v - 1) for k, v in PRONY.items()}
-    assert max(err.values()) < 0.02, err
-    # noiseless: the moduli and times to much better than the work of adhesion, whose
-    # optimum the event residuals shift by ~0.6 %
-    assert max(err[k] for k in PRONY if k != "work_of_adhesion") < 1e-3, err
-    assert res.converged and np.all(np.isfinite(res.stderr))
+    for k, v in PRONY.items():
+        i = res.names.index(k)
+        assert abs(res[k] - v) < 4 * res.stderr[i], (k, res[k], res.stderr[i])
+    # a direct prony:2 fit (which runs the nested chain standard -> prony:2) agrees
+    direct = _fit(prony_curves, rheology="prony:2")
+    assert direct.chi2 == pytest.approx(res.chi2, rel=1e-6)
 
 
 def test_cli_prony(prony_curves, tmp_path, monkeypatch):
@@ -257,80 +246,17 @@ def test_cli_prony(prony_curves, tmp_path, monkeypatch):
         _write_csv(files[-1], c)
     out = tmp_path / "result"
     code = _fit_cli([*files, "--radius", str(R), "--rheology", "prony:2",
-                                  "--starts", "1", "--no-figure", "--quiet", "--out",
-                                  str(out)])
+                     "--starts", str(STARTS), "--no-figure", "--quiet", "--out", str(out)])
     assert code == 0
     table, rows = _read_outputs(out)
     assert table["rheology"] == "prony:2" and table["model"] == "relaxed"
     for k, v in PRONY.items():
         unit = {"G": "Pa", "t": "s", "w": "J_m2"}[k[0]]
-        assert table[f"{k}_{unit}"]["value"] == pytest.approx(v, rel=0.02), k
+        assert table[f"{k}_{unit}"]["value"] == pytest.approx(v, rel=0.1), k
     assert [r["parameter"] for r in rows] == list(PRONY)
     assert table["loading"] == {"type": "displacement", "spring_constant_N_m": None}
-    assert len(table["inputs"]) == 3 and table["r_squared"] > 0.9
-
-
-# --------------------------------------------------------------------------------------
-# Compliant loading (history model, cantilever of 0.5 N/m)
-# --------------------------------------------------------------------------------------
-
-K = 0.5
-CELLS = 16
-
-
-@pytest.fixture(scope="module")
-def compliant_curve():
-    # approach at 4 um/s to 1 um (15 samples), hold 2 s (20), lift 3.5 um at 4 um/s (70);
-    # the contact stays pinned and jumps off at a drive position of -1.97 um
-    v = 4e-6
-    ta = np.linspace(0.0, D0 / v, 15)
-    th = np.linspace(D0 / v, D0 / v + 2.0, 21)[1:]
-    tr = th[-1] + np.linspace(0.0, 3.5e-6 / v, 71)[1:]
-    ts = np.concatenate([ta, th, tr])
-    z = np.concatenate([ta * v, np.full(20, D0), D0 - (tr - th[-1]) * v])
-    sol = jc.simulate(jc.StandardModel(TRUE["G0"], TRUE["G1"], TRUE["eta1"]), jc.Parabola(R),
-                      TRUE["work_of_adhesion"], ts, z, loading=jc.CompliantLoading(K),
-                      grid=jc.FoundationGrid(cells=CELLS))
-    d, f = np.asarray(sol.displacement), np.asarray(sol.force)
-    # the spring: k (z - d) = F, and the jump-off lies inside the lift
-    np.testing.assert_allclose(K * (z - d), f, atol=1e-12 * np.abs(f).max())
-    assert np.isfinite(float(sol.jumpoff_time)) and f[-1] == 0.0
-    return fitting.Curve(time=ts, displacement=d, force=f,
-                         segment=np.repeat([0, 1, 2], [15, 20, 70]),
-                         segment_names=("approach", "hold", "retract"))
-
-
-def test_compliant_history_fit_recovers_parameters(compliant_curve):
-    spec = fitting.make_spec("history", compliant=True, cells=CELLS)
-    guess = fitting.initial_guess([compliant_curve], spec, jc.Parabola(R))
-    assert abs(np.log(guess["work_of_adhesion"] / TRUE["work_of_adhesion"])) > np.log(2)
-    res = fitting.fit(compliant_curve, radius=R, model="history", spring_constant=K,
-                      cells=CELLS, n_starts=1, progress=False)
-    assert res.spec.compliant and float(res.data.stiffness[0]) == K
-    err = {k: abs(res[k] / v - 1) for k, v in TRUE.items()}
-    # the jump-off is known to the drive step (50 nm) only; measured errors 1e-7 for the
-    # moduli and 1e-3 for the work of adhesion
-    assert max(err.values()) < 0.02, err
-    assert res.converged and res.r_squared > 0.9999
-
-
-def test_cli_spring_constant(compliant_curve, tmp_path, monkeypatch):
-    monkeypatch.setenv("JAXCONTACT_CACHE", str(tmp_path / "cache"))
-    path = tmp_path / "compliant.csv"
-    _write_csv(path, compliant_curve, segments=True)
-    out = tmp_path / "result"
-    argv = [str(path), "--radius", str(R), "--model", "history", "--spring-constant", str(K),
-            "--cells", str(CELLS), "--starts", "1", "--no-figure", "--quiet", "--out",
-            str(out)]
-    assert _fit_cli(argv) == 0
-    table, rows = _read_outputs(out)
-    assert table["model"] == "history"
-    assert table["loading"] == {"type": "compliant", "spring_constant_N_m": [K]}
-    assert table["inputs"][0]["segments"] == ["approach", "hold", "retract"]
-    for k, v in TRUE.items():
-        unit = {"G0": "Pa", "G1": "Pa", "eta1": "Pa_s", "work_of_adhesion": "J_m2"}[k]
-        assert table[f"{k}_{unit}"]["value"] == pytest.approx(v, rel=0.02), k
-    assert {r["parameter"] for r in rows} == set(TRUE)
+    assert len(table["inputs"]) == 3 and table["r_squared"] > 0.99
+    assert (out / "fit.csv").is_file()
 
 
 # --------------------------------------------------------------------------------------
@@ -338,15 +264,15 @@ def test_cli_spring_constant(compliant_curve, tmp_path, monkeypatch):
 # --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_ibw_relaxed(tmp_path, monkeypatch, capsys):
     """Asylum force-distance file: spring constant and segments from the file."""
     pytest.importorskip("afmformats")
     monkeypatch.setenv("JAXCONTACT_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "ibw"
     code = _fit_cli([str(DATA / "sin-force-distance.ibw"), "--radius", str(R),
-                                  "--max-samples", "60", "--starts", "1", "--out",
-                                  str(out)])
-    assert code == 0
+                     "--max-samples", "60", "--starts", str(STARTS), "--out", str(out)])
+    assert code in (0, 1)  # 1: written, but not converged
     stdout = capsys.readouterr().out
     table, rows = _read_outputs(out)
     (inp,) = table["inputs"]
@@ -354,10 +280,14 @@ def test_cli_ibw_relaxed(tmp_path, monkeypatch, capsys):
     assert inp["segments"] == ["approach", "retract"]
     assert inp["source"].endswith("sin-force-distance.ibw")
     assert table["loading"]["type"] == "displacement"
+    assert table["converged"] == (code == 0)
     assert 0.9 < table["r_squared"] <= 1.0
-    assert f"r_squared = {table['r_squared']:.6f}" in stdout
+    assert f"R^2 (all)          {table['r_squared']:.5f}" in stdout
+    # the contact point of an instrument file is fitted by default
+    assert table["contact_point"] == "fit" and "contact_offset_m" in table
     for r in rows:
-        assert float(r["value"]) > 0 and float(r["stderr"]) > 0
+        assert r["status"] in ("ok", "not determined", "at lower bound", "at upper bound")
+        assert r["stderr"] == "" or float(r["stderr"]) > 0
     png = (out / "fit.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 1000
 

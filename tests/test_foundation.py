@@ -406,6 +406,7 @@ def test_compliant_elastic_jkr_and_instability():
             np.testing.assert_allclose(float(sol.jumpoff_radius), a_fc, rtol=1e-3)
 
 
+@pytest.mark.slow
 def test_compliant_viscoelastic_stiff_spring_is_displacement_control():
     # approach, hold, lift of the standard model: a very stiff loading system reproduces the
     # jump-off of displacement control (solved there by an independent refinement, the root
@@ -431,6 +432,7 @@ def test_compliant_viscoelastic_stiff_spring_is_displacement_control():
                                rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_compliant_jumpoff_gradient_matches_closed_form():
     # derivatives of the jump-off force and radius with respect to the modulus, the work of
     # adhesion and the stiffness of the loading system (implicit differentiation through

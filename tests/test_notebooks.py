@@ -1,22 +1,22 @@
-"""The notebooks: each one with its own test file runs there (`test_notebook_<stem>.py`,
-so that pytest-xdist's `--dist loadfile` spreads them over the workers, with the figure
-conventions of `_notebook.run_notebook` enforced); this file runs the others (written before
-those conventions, checked only for running) and checks that the README lists every
-notebook."""
+"""The notebooks: each one runs in its own test file (`test_notebook_<stem>.py`, so that
+pytest-xdist's `--dist loadfile` spreads them over the workers, with the figure conventions
+of `_notebook.run_notebook` enforced). This file checks that every notebook has that test
+file and that the README lists every notebook."""
 
 from pathlib import Path
 
-import pytest
-from _notebook import NOTEBOOK_DIR, run_notebook
+from _notebook import NOTEBOOK_DIR
 
 TESTS = Path(__file__).resolve().parent
 NOTEBOOKS = sorted(NOTEBOOK_DIR.glob("*.ipynb"))
-OTHERS = [p for p in NOTEBOOKS if not (TESTS / f"test_notebook_{p.stem}.py").exists()]
 
 
-@pytest.mark.parametrize("path", OTHERS, ids=[p.name for p in OTHERS])
-def test_notebook_runs(path):
-    run_notebook(path.name, conventions=False)
+def test_every_notebook_has_a_test_that_runs_it():
+    assert NOTEBOOKS
+    for p in NOTEBOOKS:
+        test = TESTS / f"test_notebook_{p.stem}.py"
+        assert test.exists(), f"{p.name} has no test file {test.name}"
+        assert f'run_notebook("{p.name}")' in test.read_text(), f"{test.name} does not run it"
 
 
 def test_readme_lists_every_notebook():

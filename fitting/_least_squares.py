@@ -1,0 +1,319 @@
+r"""Least-squares solvers, written as optimistix writes them: `init` / `step` / `terminate`.
+
+A solver minimises $\tfrac12\sum r_i^2$ of a residual function `fn(z, ctx)` over the free
+vector $z$. Its state is an `eqx.Module` with at least `z`, `steps`, `done`, `ok`; the
+drivers below run `step` in a `lax.while_loop` until `terminate` says so:
+
+* :func:`run_starts`: every start in its own lane of one vmapped loop (one start: no batch
+  axis inside the loop, so the linear algebra stays unbatched);
+* :func:`run_pool`: many independent problems on `workers` lanes; a lane whose problem
+  has stopped takes the next one from the queue inside the same loop, so the cost is the
+  sum of the steps rather than (problems × the largest step count).
+
+:class:`LevenbergMarquardt` (default of :func:`fitting.fit`): Marquardt scaling,
+multiplicative damping and a step extension, each step one exact forward-mode Jacobian
+(:func:`fitting._objective.jacobian_fn`). It is not `optimistix.LevenbergMarquardt`
+because that one compiled about 4× slower on this objective.
+
+:class:`LBFGS`: `optax.lbfgs` with its zoom line search (strong Wolfe conditions) on the same
+objective, the gradient $J^\top r$ from the same forward-mode Jacobian (reverse mode through
+the forward models' jump-off refinement gives NaN). Its line search crosses kinks that can
+stall the Gauss–Newton model; each iteration costs more.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import optax.tree_utils as otu
+
+from ._objective import jacobian_fn
+
+__all__ = ["AbstractLeastSquaresSolver", "LevenbergMarquardt", "LBFGS", "run_starts",
+           "run_pool"]
+
+
+class AbstractLeastSquaresSolver(eqx.Module):
+    """A solver as `init(fn, z0, ctx) -> state`, `step(fn, state, ctx) -> state`,
+    `terminate(state) -> (done, converged)` and `chi2(state)` ($\\sum r^2$)."""
+
+    @abc.abstractmethod
+    def init(self, fn: Callable, z0, ctx):
+        ...
+
+    @abc.abstractmethod
+    def step(self, fn: Callable, state, ctx):
+        ...
+
+    @abc.abstractmethod
+    def chi2(self, state):
+        ...
+
+    @abc.abstractmethod
+    def last_jacobian(self, state):
+        """`(r, J)` at the state's `z` if the state carries them (`J` w.r.t. `z`), else None."""
+
+    def terminate(self, state):
+        """`(done, converged)` of a state (every state carries both flags)."""
+        return state.done, state.ok
+
+
+# ---- Levenberg–Marquardt ------------------------------------------------------------------
+
+
+class _LMState(eqx.Module):
+    z: jax.Array
+    r: jax.Array
+    J: jax.Array
+    chi2: jax.Array
+    lam: jax.Array
+    mu: jax.Array
+    steps: jax.Array
+    done: jax.Array
+    ok: jax.Array
+
+
+class LevenbergMarquardt(AbstractLeastSquaresSolver):
+    r"""Levenberg–Marquardt with step extension.
+
+    Trial step $\delta = -\mu\,(J^\top J + \lambda\,\mathrm{diag}(J^\top J))^{-1}J^\top r$.
+    $\lambda$ shrinks ×0.2 on an accepted step and grows ×10 on a rejected one. $\mu$
+    (normally 1) doubles, up to $10^3$, after an accepted step whose actual decrease of
+    $\chi^2$ exceeds 1.25× the Gauss–Newton prediction (where the objective is almost
+    linear along the step while $J^\top J$ predicts curvature, plain LM crawls with equal,
+    collinear steps); it falls back to 1 when the gain ratio drops below 0.75 or a step is
+    rejected (then without raising $\lambda$).
+
+    **Fields:** `rtol` (converged when an accepted step changes $z$ by less than
+    `atol + rtol·max|z|` or $\chi^2$ by less than `rtol·χ²`), `atol`, `max_steps`
+    (stops unconverged after that many steps, or when $\lambda > 10^{10}$). The state's
+    `steps` counts the first evaluation at the start as a step.
+    """
+
+    rtol: float = eqx.field(static=True, default=1e-8)
+    atol: float = eqx.field(static=True, default=1e-9)
+    max_steps: int = eqx.field(static=True, default=200)
+
+    def _jac(self, fn, z, ctx):
+        return jacobian_fn(lambda zz: fn(zz, ctx))(z)
+
+    def init(self, fn, z0, ctx):
+        # no evaluation here: the state starts at chi2 = inf with J = 0, so the first step
+        # is delta = 0 and evaluates r and J at z0 (one copy of the Jacobian in the
+        # compiled loop instead of two: the model's Jacobian dominates compile time)
+        r0 = jax.eval_shape(lambda: fn(z0, ctx))
+        r = jnp.zeros(r0.shape, r0.dtype)
+        J = jnp.zeros(r0.shape + z0.shape, r0.dtype)
+        one = jnp.asarray(1.0, r0.dtype)
+        return _LMState(z=z0, r=r, J=J, chi2=jnp.asarray(jnp.inf, r0.dtype),
+                        lam=5e-3 * one, mu=one, steps=jnp.asarray(0),
+                        done=jnp.asarray(self.max_steps <= 0), ok=jnp.asarray(False))
+
+    def step(self, fn, s, ctx):
+        A = s.J.T @ s.J
+        g = s.J.T @ s.r
+        diag = jnp.diag(A)
+        D = jnp.maximum(diag, 1e-12 * jnp.max(diag) + 1e-300)
+        delta = -s.mu * jnp.linalg.solve(A + s.lam * jnp.diag(D), g)
+        delta = jnp.where(jnp.isfinite(delta), delta, 0.0)
+        r_new, J_new = self._jac(fn, s.z + delta, ctx)
+        chi2_new = jnp.sum(r_new * r_new)
+        ok = jnp.isfinite(chi2_new) & (chi2_new <= s.chi2)
+        predicted = -(2.0 * g @ delta + delta @ A @ delta)
+        gain = (s.chi2 - chi2_new) / jnp.maximum(predicted, 1e-300)
+        small = (jnp.max(jnp.abs(delta)) < self.atol + self.rtol * jnp.max(jnp.abs(s.z))) | (
+            (s.chi2 - chi2_new) <= self.rtol * s.chi2)
+        converged = ok & small & jnp.isfinite(s.chi2)
+        lam = jnp.where(ok, jnp.maximum(s.lam * 0.2, 1e-12),
+                        jnp.where(s.mu > 1.0, s.lam, s.lam * 10.0))
+        mu = jnp.where(ok & (gain > 1.25), jnp.minimum(2.0 * s.mu, 1e3),
+                       jnp.where(ok & (gain > 0.75), s.mu, 1.0))
+        mu = jnp.where(jnp.isfinite(s.chi2), mu, s.mu)  # the evaluation step changes nothing
+        steps = s.steps + 1
+        return _LMState(
+            z=jnp.where(ok, s.z + delta, s.z),
+            r=jnp.where(ok, r_new, s.r),
+            J=jnp.where(ok, J_new, s.J),
+            chi2=jnp.where(ok, chi2_new, s.chi2),
+            lam=lam, mu=mu, steps=steps,
+            done=converged | (lam > 1e10) | (steps > self.max_steps),
+            ok=converged,
+        )
+
+    def chi2(self, state):
+        return state.chi2
+
+    def last_jacobian(self, state):
+        return state.r, state.J
+
+
+# ---- optax L-BFGS -------------------------------------------------------------------------
+
+
+def _half_ssq(fn, z, ctx):
+    r = fn(z, ctx)
+    return 0.5 * jnp.sum(r * r)
+
+
+def _half_ssq_fwd(fn, z, ctx):
+    r, J = jacobian_fn(lambda zz: fn(zz, ctx))(z)
+    return 0.5 * jnp.sum(r * r), (J.T @ r, ctx)
+
+
+def _zero_cotangent(x):
+    x = jnp.asarray(x)
+    if jnp.issubdtype(x.dtype, jnp.inexact):
+        return jnp.zeros_like(x)
+    return np.zeros(x.shape, dtype=jax.dtypes.float0)
+
+
+def _half_ssq_bwd(fn, res, ct):
+    g, ctx = res
+    return ct * g, jax.tree.map(_zero_cotangent, ctx)
+
+
+# ½ Σ r²; its gradient J^T r comes from the forward-mode Jacobian
+_half_ssq = jax.custom_vjp(_half_ssq, nondiff_argnums=(0,))
+_half_ssq.defvjp(_half_ssq_fwd, _half_ssq_bwd)
+
+
+class _LBFGSState(eqx.Module):
+    z: jax.Array
+    opt_state: tuple
+    value: jax.Array
+    grad: jax.Array
+    steps: jax.Array
+    evaluations: jax.Array
+    done: jax.Array
+    ok: jax.Array
+
+
+class LBFGS(AbstractLeastSquaresSolver):
+    """optax L-BFGS with the zoom line search on $\\tfrac12\\sum r^2$.
+
+    Converged when an iteration changes the loss by less than `rtol` relative (either way:
+    at the optimum round-off decides the sign) or the largest gradient component falls
+    below `gtol` times the loss; a line search without decrease ends the run unconverged.
+    **Fields:** `rtol`, `gtol`, `max_steps`, `memory` (L-BFGS pairs), `linesearch_steps`.
+    """
+
+    rtol: float = eqx.field(static=True, default=1e-8)
+    gtol: float = eqx.field(static=True, default=1e-8)
+    max_steps: int = eqx.field(static=True, default=200)
+    memory: int = eqx.field(static=True, default=10)
+    linesearch_steps: int = eqx.field(static=True, default=20)
+
+    def _opt(self):
+        return optax.lbfgs(memory_size=self.memory, linesearch=optax.scale_by_zoom_linesearch(
+            max_linesearch_steps=self.linesearch_steps, initial_guess_strategy="one"))
+
+    def init(self, fn, z0, ctx):
+        v0, g0 = jax.value_and_grad(lambda z, c: _half_ssq(fn, z, c))(z0, ctx)
+        return _LBFGSState(z=z0, opt_state=self._opt().init(z0), value=v0, grad=g0,
+                           steps=jnp.asarray(0), evaluations=jnp.asarray(1),
+                           done=jnp.asarray(self.max_steps <= 0), ok=jnp.asarray(False))
+
+    def step(self, fn, s, ctx):
+        # value and gradient at s.z are carried in the state (not re-evaluated: optax's
+        # `value_and_grad_from_state` would do so in a `lax.cond`, i.e. always under vmap)
+        def value_fn(z, ctx):
+            return _half_ssq(fn, z, ctx)
+
+        updates, opt_state = self._opt().update(s.grad, s.opt_state, s.z, value=s.value,
+                                                grad=s.grad, value_fn=value_fn, ctx=ctx)
+        z_new = optax.apply_updates(s.z, updates)
+        v_new = otu.tree_get(opt_state, "value")
+        g_new = otu.tree_get(opt_state, "grad")
+        n_eval = otu.tree_get(opt_state, "info").num_linesearch_steps
+        better = jnp.isfinite(v_new) & (v_new <= s.value)
+        scale = jnp.maximum(jnp.abs(v_new), 1e-300)
+        flat = jnp.isfinite(v_new) & (jnp.abs(s.value - v_new) <= self.rtol * scale)
+        grad_small = better & (jnp.max(jnp.abs(g_new)) <= self.gtol * scale)
+        converged = flat | grad_small
+        steps = s.steps + 1
+        return _LBFGSState(
+            z=jnp.where(better, z_new, s.z), opt_state=opt_state,
+            value=jnp.where(better, v_new, s.value),
+            grad=jnp.where(better, g_new, s.grad), steps=steps,
+            evaluations=s.evaluations + n_eval,
+            done=converged | ~better | (steps >= self.max_steps), ok=converged,
+        )
+
+    def chi2(self, state):
+        return 2.0 * state.value
+
+    def last_jacobian(self, state):
+        return None
+
+
+# ---- drivers ------------------------------------------------------------------------------
+
+
+def _loop(solver, fn, state, ctx):
+    return jax.lax.while_loop(lambda s: ~solver.terminate(s)[0],
+                              lambda s: solver.step(fn, s, ctx), state)
+
+
+def run_starts(solver: AbstractLeastSquaresSolver, fn, z0s, ctx):
+    """Final states of every start (rows of `z0s`), one vmapped loop, shared `ctx`."""
+
+    def one(z0):
+        return _loop(solver, fn, solver.init(fn, z0, ctx), ctx)
+
+    if z0s.shape[0] == 1:
+        return jax.tree.map(lambda x: x[None], one(z0s[0]))
+    return jax.vmap(one)(z0s)
+
+
+def _take(tree, i):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
+             keep_jacobian: bool = False):
+    """`(z, chi2, ok, steps)` of `len(z0s)` problems solved on `workers` lanes, followed by
+    `(r, J)` of each final state when `keep_jacobian` and the solver carries them.
+
+    `ctxs` has a leading problem axis. All initial states are evaluated first (one batched
+    call); then one loop iterates all lanes; a lane whose problem is done writes its result
+    and is refilled from the queue. The loop ends when every problem is written.
+    """
+    n_tasks = z0s.shape[0]
+    w = max(1, min(int(workers), n_tasks))
+    states0 = jax.vmap(lambda z, c: solver.init(fn, z, c))(z0s, ctxs)
+
+    def step(s, ctx):  # a finished lane stays as it is
+        new = solver.step(fn, s, ctx)
+        return jax.tree.map(lambda a, b: jnp.where(s.done, a, b), s, new)
+
+    def result(s):
+        return (s.z, solver.chi2(s), s.ok, s.steps) + (
+            tuple(solver.last_jacobian(s) or ()) if keep_jacobian else ())
+
+    def body(c):
+        work, tasks, out, queued, written = c
+        ctx = _take(ctxs, jnp.minimum(tasks, n_tasks - 1))
+        work = jax.vmap(step)(work, ctx)
+        finished = (tasks < n_tasks) & work.done
+        slot = jnp.where(finished, tasks, n_tasks)  # out of range: dropped
+        out = jax.tree.map(lambda o, x: o.at[slot].set(x, mode="drop"), out,
+                           jax.vmap(result)(work))
+        new = queued + jnp.cumsum(finished) - 1
+        refill = finished & (new < n_tasks)
+        fresh = _take(states0, jnp.minimum(new, n_tasks - 1))
+        work = jax.tree.map(
+            lambda x, f: jnp.where(refill.reshape((-1,) + (1,) * (x.ndim - 1)), f, x),
+            work, fresh)
+        tasks = jnp.where(finished, new, tasks)
+        n_fin = jnp.sum(finished)
+        return work, tasks, out, queued + n_fin, written + n_fin
+
+    init = (_take(states0, jnp.arange(w)), jnp.arange(w), jax.vmap(result)(states0),
+            jnp.asarray(w), jnp.asarray(0))
+    return jax.lax.while_loop(lambda c: c[4] < n_tasks, body, init)[2]

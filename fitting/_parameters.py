@@ -1,0 +1,168 @@
+r"""The map between the optimiser's free vector $z$ and the natural parameters $p$.
+
+Every parameter has an *internal coordinate* $u$: $u = \log p$ for the positive ones
+(moduli, viscosities, times, $\Delta\gamma$; decades apart, so logs make the problem well
+scaled and keep them positive) and $u = p/s$ for the offsets (any sign; $s$ a data scale:
+the indentation range for the contact offset, the force range for the force offset).
+
+Free, unbounded: $u_i = u^\mathrm{ref}_i + z_i$. Free and bounded in $[l_i, h_i]$ (internal
+coordinates): $u_i = l_i + (h_i - l_i)\,\sigma(z_i)$ with the logistic $\sigma$, so no
+step can leave the bounds. Fixed: $u_i = u^\mathrm{ref}_i$.
+
+A bounded parameter whose logistic is saturated (within $10^{-4}$ of the span from a
+bound, :meth:`Parameterisation.at_bound`) is reported *at its bound*: the data push it
+there, and no standard error is given for it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._spec import normalise_names
+
+__all__ = ["Parameterisation", "make_parameterisation", "AT_BOUND"]
+
+#: Fraction of the bounded span within which a parameter is reported at its bound.
+AT_BOUND = 1e-4
+
+
+class Parameterisation(eqx.Module):
+    """Free vector ↔ internal coordinates ↔ natural parameters (see the module docstring).
+
+    **Fields:** `free` (indices of the free parameters), `log` (per parameter: internal
+    coordinate is $\\log p$, else $p/s$), `reference` (internal coordinates of the
+    reference point: fixed values and the origin of unbounded free ones), `scale` ($s$ of
+    the linear parameters, 1 for log ones), `lower`, `upper` (internal bounds, ±inf when
+    unbounded).
+    """
+
+    free: tuple[int, ...] = eqx.field(static=True)
+    log: tuple[bool, ...] = eqx.field(static=True)
+    reference: Float[Array, " p"]
+    scale: Float[Array, " p"]
+    lower: Float[Array, " p"]
+    upper: Float[Array, " p"]
+
+    def internal(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
+        """Internal coordinates $u$ of all parameters at the free vector `z`."""
+        idx = jnp.asarray(self.free, dtype=int)
+        ref = self.reference[idx]
+        lo, hi = self.lower[idx], self.upper[idx]
+        bounded = jnp.isfinite(lo) & jnp.isfinite(hi)
+        lo_s = jnp.where(bounded, lo, 0.0)
+        hi_s = jnp.where(bounded, hi, 1.0)
+        val = jnp.where(bounded, lo_s + (hi_s - lo_s) * jax.nn.sigmoid(z), ref + z)
+        return self.reference.at[idx].set(val)
+
+    def to_natural(self, u: Float[Array, " p"]) -> Float[Array, " p"]:
+        """Natural parameters of internal coordinates `u`."""
+        is_log = jnp.asarray(self.log)
+        return jnp.where(is_log, jnp.exp(jnp.where(is_log, u, 0.0)), u * self.scale)
+
+    def natural(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
+        """Natural parameters at the free vector `z`."""
+        return self.to_natural(self.internal(z))
+
+    def to_internal(self, p) -> np.ndarray:
+        """Internal coordinates of natural parameters `p` (numpy)."""
+        p = np.asarray(p, dtype=float)
+        is_log = np.asarray(self.log)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(is_log, np.log(np.where(is_log, p, 1.0)),
+                            p / np.asarray(self.scale))
+
+    def dnatural(self, u) -> np.ndarray:
+        """$\\mathrm dp/\\mathrm du$ per parameter ($p$ for log ones, $s$ for linear)."""
+        u = np.asarray(u, dtype=float)
+        return np.where(np.asarray(self.log), np.exp(np.where(self.log, u, 0.0)),
+                        np.asarray(self.scale))
+
+    def z_of(self, u) -> np.ndarray:
+        """Free vector of internal coordinates `u` (clipped strictly inside the bounds)."""
+        u = np.asarray(u, dtype=float)
+        idx = list(self.free)
+        ref = np.asarray(self.reference)[idx]
+        lo, hi = np.asarray(self.lower)[idx], np.asarray(self.upper)[idx]
+        th = u[idx]
+        bounded = np.isfinite(lo) & np.isfinite(hi)
+        out = th - ref
+        if np.any(bounded):
+            span = np.where(bounded, hi - lo, 1.0)
+            s = np.clip((th - np.where(bounded, lo, 0.0)) / span, 1e-9, 1 - 1e-9)
+            out = np.where(bounded, np.log(s) - np.log1p(-s), out)
+        return out
+
+    def at_bound(self, u) -> list[str | None]:
+        """Per parameter: "lower", "upper" (saturated at that bound) or None."""
+        u = np.asarray(u, dtype=float)
+        lo, hi = np.asarray(self.lower), np.asarray(self.upper)
+        out: list[str | None] = [None] * len(u)
+        for i in self.free:
+            if math.isfinite(lo[i]) and math.isfinite(hi[i]):
+                s = (u[i] - lo[i]) / (hi[i] - lo[i])
+                out[i] = "lower" if s < AT_BOUND else ("upper" if s > 1 - AT_BOUND else None)
+        return out
+
+    def with_reference(self, u) -> Parameterisation:
+        """The same parameterisation around other internal reference coordinates."""
+        return eqx.tree_at(lambda q: q.reference, self, jnp.asarray(u, dtype=float))
+
+
+def make_parameterisation(
+    info: Sequence[tuple[str, str, str]],
+    reference: Mapping[str, float],
+    *,
+    fixed: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    scales: Mapping[str, float] | None = None,
+) -> Parameterisation:
+    """Parameterisation for the parameters `info` (:func:`fitting._spec.parameter_info`).
+
+    `reference`: natural values (the reference point; a fixed parameter's value comes
+    from `fixed`). `bounds`: `{name: (lower, upper)}` natural (positive for the log
+    parameters). `scales`: $s$ of the linear parameters (default 1).
+    """
+    names = [n for n, _, _ in info]
+    is_log = tuple(not kind.startswith("offset") for _, _, kind in info)
+    fixed = normalise_names(fixed, names, "fixed")
+    bounds = normalise_names(bounds, names, "bounds")
+    scales = dict(scales or {})
+    ref = np.array([float(fixed.get(n, reference[n])) for n in names])
+    scale = np.array([1.0 if lg else float(scales.get(n, 1.0)) for n, lg in
+                      zip(names, is_log, strict=True)])
+    for n, v, lg in zip(names, ref, is_log, strict=True):
+        if not math.isfinite(v) or (lg and v <= 0):
+            what = "fixed" if n in fixed else "initial"
+            rng = "(0, inf)" if lg else "(-inf, inf)"
+            raise ValueError(f"{what} value of {n!r} must be finite and in {rng}; got {v!r}")
+    lo = np.full(len(names), -np.inf)
+    hi = np.full(len(names), np.inf)
+    for n, pair in bounds.items():
+        i = names.index(n)
+        try:
+            a, b = (float(x) for x in pair)
+        except (TypeError, ValueError):
+            raise ValueError(f"bounds for {n!r} must be a pair (lower, upper); got "
+                             f"{pair!r}") from None
+        ok = math.isfinite(a) and math.isfinite(b) and a < b and (a > 0 or not is_log[i])
+        if not ok:
+            need = "0 < lower < upper" if is_log[i] else "finite lower < upper"
+            raise ValueError(f"bounds for {n!r} must satisfy {need}; got {(a, b)}")
+        lo[i], hi[i] = ((math.log(a), math.log(b)) if is_log[i]
+                        else (a / scale[i], b / scale[i]))
+    free = tuple(i for i, n in enumerate(names) if n not in fixed)
+    if not free:
+        raise ValueError("fixed: every parameter is fixed; nothing to fit")
+    u = np.where(is_log, np.log(np.where(is_log, ref, 1.0)), ref / scale)
+    # a reference outside its bounds starts at the nearest bound (inside, by the clip of z_of)
+    u = np.clip(u, lo, hi)
+    reference, sc, lower, upper = jax.device_put((u, scale, lo, hi))
+    return Parameterisation(free=free, log=is_log, reference=reference, scale=sc,
+                            lower=lower, upper=upper)

@@ -1,0 +1,346 @@
+r"""From measured curves to the arrays of a fit: :func:`prepare_curves` → :class:`CurveBatch`.
+
+Which samples
+-------------
+* ``model="relaxed"``: the retract, from its deepest sample on (time counted from the
+  start of the lift; the relaxed depth is the first indentation; samples above it are
+  clipped to it, so noise cannot make the contact "advance").
+* ``model="history"``: the approach, hold and retract segments (a ``rest`` segment is
+  dropped), the free part of the approach included: it carries the contact point.
+
+Every selected sample is a residual. Long curves are *subsampled* — never averaged or
+interpolated, which biases a curved signal — to at most `max_samples` per curve
+(:func:`select_samples`): the first and last sample of every segment, the samples around
+the measured jump-off (the largest force rise of the retract) and around the contact
+point are always kept; the rest are spread evenly in a coordinate that is half sample
+index and half arc length of the (smoothed, normalised) force, so fast changes (the start
+of a hold, a detachment step) get more samples than a flat baseline. Each kept sample
+stands for the measured samples nearest to it and carries their number as its weight
+$w_i$ (:attr:`CurveBatch.weight`), so $\sum_i w_i r_i^2$ approximates the $\chi^2$ of all
+measured samples: the fit aims at the optimum of the whole curve, every measured sample
+counting once, whatever the subsampling. The estimator stays unbiased (no averaging); its
+variance is larger than with all samples and the standard errors account for the weights
+(:mod:`fitting._uncertainty`).
+
+Curves of different lengths are padded to a common length by repeating the last sample
+(weight 0), so all curves are evaluated in one ``vmap``.
+
+Noise
+-----
+$\sigma$ of a curve: the baseline noise found by the loader when there is one, else a
+robust estimate from the data ($1.4826\,\mathrm{median}|\Delta^2 F|/\sqrt 6$), floored at
+$10^{-6}$ of the force range (noiseless data).
+
+The two samples on either side of the measured jump-off (the last attached and the first
+detached) get $\sigma_j = \sqrt{\sigma^2 + \Delta F^2/12}$, $\Delta F$ the jump between
+them: point samples say only that the contact was lost somewhere between them, a time
+known to the sampling interval (a uniform distribution over it has variance
+$\Delta t^2/12$), and the model resolves its own jump-off inside the interval
+(:mod:`fitting._objective`). Without this the fit would claim the jump-off time, and
+with it $\Delta\gamma$ when the contact jumps off from the pinned phase, to a precision
+the samples do not have.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+import jaxcontact as jc
+
+from ._curve import Curve
+from ._spec import ModelSpec
+
+__all__ = ["CurveBatch", "prepare_curves", "select_samples", "sample_weights", "noise_level",
+           "SEGMENTS",
+           "DEFAULT_MAX_SAMPLES"]
+
+#: Segment codes of :attr:`CurveBatch.segment`.
+SEGMENTS = ("approach", "hold", "retract")
+
+#: Default largest number of samples per curve, by model.
+DEFAULT_MAX_SAMPLES = {"relaxed": 1000, "history": 600}
+
+
+class CurveBatch(eqx.Module):
+    r"""All curves of a fit, padded to one length `n` (shapes `(C, n)` / `(C,)`).
+
+    **Fields:** `ts` [s] (from the first selected sample), `drive` (model input [m]: the
+    indentation, or the base position $z = d + F/k$ under compliant loading), `indentation`
+    [m], `force` [N], `valid` (1: a sample, 0: padding), `weight` (number of measured
+    samples a kept sample stands for; 0 for padding), `lower`, `upper` [s] (the interval a
+    sample stands for: halfway to its neighbours; the model's jump-off is resolved inside
+    it), `segment` (index into :data:`SEGMENTS`), `index` (sample index in the curve as
+    given), `contact` (1 where the data are in contact: indentation > 0 before the measured
+    jump-off, or $|F| > 3\sigma$), `noise` [N] (per sample: the curve's noise, larger at the
+    measured jump-off), `sigma` [N] (the curve's noise), `depth` [m] (relaxed depth, or
+    largest indentation), `detaches` (1: the force jumps back to the baseline after its most
+    tensile value), `stiffness` [N/m] (compliant loading; 1 otherwise), `profile`.
+    """
+
+    ts: Float[Array, "C n"]
+    drive: Float[Array, "C n"]
+    indentation: Float[Array, "C n"]
+    force: Float[Array, "C n"]
+    valid: Float[Array, "C n"]
+    weight: Float[Array, "C n"]
+    lower: Float[Array, "C n"]
+    upper: Float[Array, "C n"]
+    segment: Int[Array, "C n"]
+    index: Int[Array, "C n"]
+    contact: Float[Array, "C n"]
+    noise: Float[Array, "C n"]
+    sigma: Float[Array, " C"]
+    depth: Float[Array, " C"]
+    detaches: Float[Array, " C"]
+    stiffness: Float[Array, " C"]
+    profile: jc.AbstractProfile
+
+    @property
+    def n_curves(self) -> int:
+        return self.ts.shape[0]
+
+    @property
+    def n_samples(self) -> int:
+        """Number of kept samples (all curves)."""
+        return int(np.sum(np.asarray(self.valid) > 0))
+
+    @property
+    def n_measured(self) -> int:
+        """Number of measured samples the kept ones stand for (all curves)."""
+        return int(round(float(np.sum(np.asarray(self.weight)))))
+
+
+def noise_level(force: np.ndarray, baseline_noise: float | None) -> float:
+    """$\\sigma$ [N] of a curve (see the module docstring)."""
+    frange = float(np.ptp(force)) if force.size > 1 else abs(float(force[0]))
+    floor = 1e-6 * max(frange, 1e-300)
+    if baseline_noise is not None and baseline_noise > 0:
+        return max(float(baseline_noise), floor)
+    est = 0.0
+    if force.size >= 5:
+        est = 1.4826 * float(np.median(np.abs(np.diff(force, 2)))) / math.sqrt(6.0)
+    return max(est, floor)
+
+
+def _jump_index(f: np.ndarray, sigma: float) -> int | None:
+    """Index of the first sample after the measured jump-off in `f` (a retract), or None.
+
+    The jump-off is the largest rise of the force between two samples after its most
+    tensile value, when that rise exceeds $5\\sigma$ and brings the force at least half way
+    back to 0.
+    """
+    if f.size < 3:
+        return None
+    i_min = int(np.argmin(f))
+    if f[i_min] > -3.0 * sigma or i_min >= f.size - 1:
+        return None
+    rise = np.diff(f[i_min:])
+    j = int(np.argmax(rise))
+    if rise[j] < 5.0 * sigma or f[i_min + j + 1] < 0.5 * f[i_min]:
+        return None
+    return i_min + j + 1
+
+
+def select_samples(f, segment, budget: int, keep=()) -> np.ndarray:
+    """Indices of at most about `budget` samples of a curve with forces `f` (sorted; see
+    the module docstring).
+
+    `keep`: indices that must be kept (plus the first and last sample of every segment).
+    Returns all indices when the curve has no more than `budget` samples.
+    """
+    n = len(f)
+    if n <= budget:
+        return np.arange(n)
+    seg = np.asarray(segment)
+    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    ends = np.r_[starts[1:] - 1, n - 1]
+    required = np.unique(np.clip(np.r_[starts, ends, np.asarray(keep, dtype=int)], 0, n - 1))
+    rest = max(budget - required.size, 2)
+    # smoothed, normalised force: a moving average over the samples one kept sample stands for
+    w = max(1, n // rest)
+    c = np.cumsum(np.r_[0.0, f])
+    lo = np.clip(np.arange(n) - w // 2, 0, n)
+    hi = np.clip(lo + w, 0, n)
+    fs = (c[hi] - c[lo]) / (hi - lo)
+    frange = float(np.ptp(fs)) or 1.0
+    arc = np.r_[0.0, np.cumsum(np.abs(np.diff(fs)))] / frange
+    arc = arc / arc[-1] if arc[-1] > 0 else np.zeros(n)
+    coord = 0.5 * np.arange(n) / max(n - 1, 1) + 0.5 * arc
+    picks = np.searchsorted(coord, np.linspace(0.0, coord[-1], rest))
+    return np.unique(np.r_[required, np.clip(picks, 0, n - 1)])
+
+
+def sample_weights(pick: np.ndarray, n: int) -> np.ndarray:
+    """Number of the `n` measured samples nearest (by index) to each kept index `pick`."""
+    pick = np.asarray(pick)
+    if pick.size == 1:
+        return np.array([float(n)])
+    edges = np.r_[0, (pick[:-1] + pick[1:]) // 2 + 1, n]
+    return np.diff(edges).astype(float)
+
+
+def _intervals(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Halfway points to the neighbours (the first and last sample mirror their step)."""
+    if t.size == 1:
+        return t - 0.5, t + 0.5
+    mid = 0.5 * (t[1:] + t[:-1])
+    lower = np.r_[t[0] - (mid[0] - t[0]), mid]
+    upper = np.r_[mid, t[-1] + (t[-1] - mid[-1])]
+    return lower, upper
+
+
+def _select(curve: Curve, spec: ModelSpec, n: int) -> tuple[Curve, np.ndarray]:
+    """The samples the model uses (see the module docstring) and their indices in `curve`."""
+    names = curve.segment_names
+    index = np.arange(len(curve))
+    if spec.model == "relaxed":
+        if "retract" in names:
+            # the lift starts at the deepest sample up to the first retract sample (an
+            # inferred one-sample "approach" at the top of a pure lift is kept)
+            first = int(np.argmax(curve.segment == names.index("retract")))
+            head = curve.displacement[: first + 1]
+            i0 = int(len(head) - 1 - np.argmax(head[::-1]))
+        else:
+            i0 = 0
+        keep = index >= i0
+        seg = np.full(int(keep.sum()), SEGMENTS.index("retract"))
+    else:
+        wanted = [s for s in SEGMENTS if s in names]
+        if "retract" not in wanted:
+            raise ValueError(f"curve {n} ({curve.source or 'no source'}): the history model "
+                             f"needs a retract segment; its segments are {names}")
+        keep = np.isin(np.asarray(names, dtype=object)[curve.segment], wanted)
+        seg = np.array([SEGMENTS.index(names[j]) for j in curve.segment[keep]])
+    return seg, index[keep]
+
+
+def prepare_curves(
+    curves: Curve | Sequence[Curve],
+    spec: ModelSpec,
+    *,
+    radius: float | None = None,
+    profile: jc.AbstractProfile | None = None,
+    spring_constant: float | Sequence[float] | None = None,
+    max_samples: int | None = None,
+) -> CurveBatch:
+    """Select and subsample the samples, estimate the noise, pad into a `CurveBatch`.
+
+    `max_samples`: largest number of samples per curve (default
+    :data:`DEFAULT_MAX_SAMPLES` of the model; see :func:`select_samples`).
+    `spring_constant`: one value or one per curve, for ``spec.compliant`` (default: the
+    curves' own).
+    """
+    if isinstance(curves, Curve):
+        curves = [curves]
+    curves = list(curves)
+    if not curves:
+        raise ValueError("curves: give at least one curve")
+    if profile is None:
+        if radius is None or not (math.isfinite(float(radius)) and float(radius) > 0):
+            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
+        profile = jc.Parabola(float(radius))
+    # the probe's parameters against the forward model's domain and unit plausibility
+    # (eager `ValueError` naming the parameter; the traced model does not check them)
+    jc.profile_radius(profile, 1e-9)
+    budget = DEFAULT_MAX_SAMPLES[spec.model] if max_samples is None else int(max_samples)
+    if budget < 4:
+        raise ValueError(f"max_samples must be an integer >= 4; got {max_samples!r}")
+    if spring_constant is None or np.ndim(spring_constant) == 0:
+        ks = [spring_constant] * len(curves)
+    else:
+        ks = list(spring_constant)
+        if len(ks) != len(curves):
+            raise ValueError("spring_constant: give one value or one per curve")
+    rows = []
+    for n, c in enumerate(curves):
+        seg, idx = _select(c, spec, n)
+        t_all, d_all, f_all = c.time[idx], c.displacement[idx], c.force[idx]
+        idx_all = idx
+        if len(idx) < 2:
+            raise ValueError(f"curve {n} ({c.source or 'no source'}): fewer than 2 samples "
+                             f"in the segments the {spec.model} model uses")
+        noise = c.contact.noise if c.contact is not None else None
+        ret = seg == SEGMENTS.index("retract")
+        sigma = noise_level(f_all[ret] if ret.any() else f_all, noise)
+        j_ret = _jump_index(f_all[ret], sigma) if ret.any() else None
+        keep = []
+        if j_ret is not None:
+            j = int(np.flatnonzero(ret)[j_ret])
+            keep += list(range(j - 3, j + 3))
+        if spec.model == "history":
+            app = np.flatnonzero(seg == SEGMENTS.index("approach"))
+            if app.size:
+                c0 = app[int(np.argmax(d_all[app] > 0))]
+                keep += list(range(c0 - 2, c0 + 3))
+        pick = select_samples(f_all, seg, budget, keep)
+        weight = sample_weights(pick, len(t_all))
+        t, d, f, seg, idx = t_all[pick], d_all[pick], f_all[pick], seg[pick], idx[pick]
+        t = t - t[0]
+        label = f"curve {n} ({c.source or 'no source'})"
+        jc.check_plausible(f"{label}: displacement", d_all, "length", magnitude=True)
+        jc.check_plausible(f"{label}: duration", t_all[-1] - t_all[0], "time")
+        k = ks[n]
+        if spec.compliant:
+            k = k if k is not None else c.spring_constant
+            if k is None or not (math.isfinite(float(k)) and float(k) > 0):
+                raise ValueError(f"curve {n}: compliant loading needs a spring constant "
+                                 f"> 0 [N/m]; got {k!r}")
+            jc.check_plausible(f"{label}: spring_constant", float(k), "stiffness")
+        if spec.model == "relaxed":
+            depth = float(d[0])
+            if depth <= 0:
+                raise ValueError(f"curve {n}: the retract starts at indentation {depth:g} m "
+                                 "<= 0; the relaxed model needs a positive start depth")
+            drive = np.minimum(d, depth)
+        else:
+            depth = float(np.max(d))
+            if depth <= 0:
+                raise ValueError(f"curve {n} ({c.source or 'no source'}): the indentation "
+                                 "never becomes positive; no contact to fit")
+            drive = d + f / float(k) if spec.compliant else d
+        lower, upper = _intervals(t)
+        noise_s = np.full(len(t), sigma)
+        before_jump = np.ones(len(t), dtype=bool)
+        if j_ret is not None:
+            j = int(np.searchsorted(idx, idx_all[j]))  # first detached, after subsampling
+            jump = float(f[j] - f[j - 1])
+            noise_s[j - 1:j + 1] = math.sqrt(sigma**2 + jump**2 / 12.0)
+            before_jump[j:] = False
+        contact = ((d > 0) & before_jump) | (np.abs(f) > 3.0 * sigma)
+        rows.append(dict(
+            ts=t, drive=drive, indentation=d, force=f, lower=lower, upper=upper,
+            segment=seg, index=idx, contact=contact.astype(float), noise=noise_s,
+            weight=weight, sigma=sigma, depth=depth,
+            detaches=float(j_ret is not None),
+            stiffness=float(k) if spec.compliant else 1.0,
+        ))
+    n_max = max(len(r["ts"]) for r in rows)
+    if any(len(c) > budget for c in curves):
+        # subsampled: pad to the budget, so curves of any length share one shape (and one
+        # compilation of the fit)
+        n_max = max(n_max, budget)
+
+    def pad(a):
+        a = np.asarray(a)
+        return np.concatenate([a, np.full(n_max - len(a), a[-1], dtype=a.dtype)])
+
+    stack = {key: np.stack([pad(r[key]) for r in rows])
+             for key in ("ts", "drive", "indentation", "force", "lower", "upper", "segment",
+                         "index", "contact", "noise", "weight")}
+    valid = np.stack([(np.arange(n_max) < len(r["ts"])).astype(float) for r in rows])
+    # padding: zero-width intervals at the last time
+    stack["weight"] = np.where(valid > 0, stack["weight"], 0.0)
+    stack["contact"] = np.where(valid > 0, stack["contact"], 0.0)
+    stack["lower"] = np.where(valid > 0, stack["lower"], stack["ts"])
+    stack["upper"] = np.where(valid > 0, stack["upper"], stack["ts"])
+    scal = {key: np.array([r[key] for r in rows], dtype=float)
+            for key in ("sigma", "depth", "detaches", "stiffness")}
+    # one transfer of all arrays (a `jnp.asarray` each costs ~30 µs of dispatch)
+    arrays = jax.device_put(dict(stack, valid=valid, **scal))
+    return CurveBatch(**arrays, profile=profile)

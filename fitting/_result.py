@@ -1,0 +1,153 @@
+"""The outcome of a fit: :class:`FitResult`, with a printable summary."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._spec import canonical_name, rheology_name
+
+__all__ = ["FitResult", "ModelChoice"]
+
+
+@dataclass
+class ModelChoice:
+    """One candidate of ``rheology="auto"``: its name, $\\chi^2$, number of free parameters
+    `k`, samples `n`, AIC $= n\\ln(\\chi^2/n) + 2k$, BIC $= n\\ln(\\chi^2/n) + k\\ln n$ and
+    whether it was chosen (smallest BIC)."""
+
+    rheology: str
+    chi2: float
+    k: int
+    n: int
+    aic: float
+    bic: float
+    chosen: bool = False
+
+
+@dataclass
+class FitResult:
+    """The outcome of :func:`fitting.fit` (numpy values, SI units).
+
+    **Parameters:** `names` (short names), `units`, `columns` (names with units, e.g.
+    ``G0_Pa``), `values`, `stderr` (nan for fixed parameters and those at a bound, inf for
+    parameters the data do not determine), `status` (per parameter: "ok", "fixed", "not
+    determined", "at lower bound", "at upper bound"), `covariance`, `correlation`.
+
+    **Quality:** `chi2` ($\\sum r^2$ of the fitted residuals), `reduced_chi2` ($\\chi^2/(m -
+    k)$), `n_data` ($m$: measured samples; kept samples carry weights, see
+    :mod:`fitting._prepare`), `n_free` ($k$), `r_squared` (of `model_force` over all fitted
+    samples, each weighted by the measured samples it stands for), `r_squared_contact` (over
+    the samples where the data or the model is in contact: indentation > 0 before the
+    measured jump-off or $|F| > 3\\sigma$, or a model contact radius > 0), `aic`, `bic` (see
+    :class:`ModelChoice`), `converged`.
+
+    **Search:** `start_losses` (final $\\chi^2$ of every start of the global search),
+    `start_steps` (iterations of every start), `optimiser`, `model_selection` (the
+    candidates of ``rheology="auto"``, else empty).
+
+    **Data and model:** `spec`, `data` (the `CurveBatch` fitted), `curves`, `profile`,
+    `radius` (for a parabola), `model_solution` (batched `ContactSolution` at the optimum),
+    `model_force` (the model's force at the sample times [N], force offset included; $R^2$
+    uses it), `fitted_force` (the same with the jump-off resolved inside its sample
+    interval, as the residuals use it; :mod:`fitting._objective`), `in_contact` (the samples
+    counted by `r_squared_contact`), `parameterisation`, `warnings`, `timings` [s].
+    """
+
+    names: list[str]
+    units: list[str]
+    columns: list[str]
+    values: np.ndarray
+    stderr: np.ndarray
+    status: list[str]
+    covariance: np.ndarray
+    correlation: np.ndarray
+    fixed: np.ndarray
+    chi2: float
+    reduced_chi2: float
+    n_data: int
+    n_free: int
+    r_squared: float
+    r_squared_contact: float
+    aic: float
+    bic: float
+    converged: bool
+    start_losses: np.ndarray
+    spec: object
+    data: object
+    curves: list = field(default_factory=list)
+    profile: object = None
+    radius: float | None = None
+    model_solution: object = None
+    model_force: np.ndarray | None = None
+    fitted_force: np.ndarray | None = None
+    in_contact: np.ndarray | None = None
+    parameterisation: object = None
+    optimiser: str = "lm"
+    start_steps: np.ndarray | None = None
+    model_selection: list[ModelChoice] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, float]:
+        """Parameter values by short name."""
+        return dict(zip(self.names, (float(v) for v in self.values), strict=True))
+
+    def __getitem__(self, name: str) -> float:
+        return self.as_dict()[canonical_name(name, self.names)]
+
+    @property
+    def rheology(self) -> str:
+        """"standard" or "prony:N"."""
+        return rheology_name(self.spec)
+
+    def summary(self) -> str:
+        """A short report: model, quality, one line per parameter, warnings."""
+        lines = [f"[[fit]] model={self.spec.model}, rheology={self.rheology}, "
+                 f"{len(self.curves)} curve(s), {self.n_data} samples "
+                 f"({self.data.n_samples} kept), "
+                 f"{self.n_free} free parameter(s), optimiser={self.optimiser}",
+                 f"    converged          {self.converged}",
+                 f"    chi2               {self.chi2:.6g}",
+                 f"    reduced chi2       {self.reduced_chi2:.6g}",
+                 f"    R^2 (all)          {self.r_squared:.5f}",
+                 f"    R^2 (in contact)   {self.r_squared_contact:.5f}",
+                 f"    AIC, BIC           {self.aic:.6g}, {self.bic:.6g}",
+                 "[[parameters]]"]
+        for col, v, s, st in zip(self.columns, self.values, self.stderr, self.status,
+                                 strict=True):
+            if st == "ok":
+                rel = f"({100 * s / abs(v):.2g} %)" if v != 0 and math.isfinite(s) else ""
+                lines.append(f"    {col:<26} {v:12.6g} +/- {s:<10.3g} {rel}")
+            else:
+                lines.append(f"    {col:<26} {v:12.6g}   {st}")
+        if self.model_selection:
+            lines.append("[[model selection]] (smallest BIC chosen)")
+            for m in self.model_selection:
+                mark = " <-" if m.chosen else ""
+                lines.append(f"    {m.rheology:<10} chi2 {m.chi2:12.6g}  k {m.k}  "
+                             f"AIC {m.aic:12.6g}  BIC {m.bic:12.6g}{mark}")
+        corr = []
+        k = len(self.names)
+        for i in range(k):
+            for j in range(i + 1, k):
+                c = self.correlation[i, j]
+                if np.isfinite(c) and abs(c) > 0.9:
+                    corr.append(f"    C({self.names[i]}, {self.names[j]}) = {c:+.3f}")
+        if corr:
+            lines.append("[[correlations]] (|C| > 0.9)")
+            lines += corr
+        if self.warnings:
+            lines.append("[[warnings]]")
+            lines += [f"    {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def __repr__(self) -> str:
+        vals = ", ".join(f"{n}={v:.4g}" for n, v in zip(self.names, self.values, strict=True))
+        return (f"FitResult({self.spec.model}, {self.rheology}: {vals}; chi2={self.chi2:.4g}, "
+                f"converged={self.converged})")

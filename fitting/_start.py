@@ -1,0 +1,302 @@
+r"""Scales of the data, the initial guess, default bounds and the starts of the global search.
+
+Data scales (:func:`data_scales`)
+---------------------------------
+* $G_H$: the relaxed modulus of the force at the deepest point of the retract,
+  $F = 8G(a d - \int_0^a g)$ with $g(a) = d$ (Hertz for a parabola, $F = \tfrac{16}{3}G
+  \sqrt R d^{3/2}$).
+* $G_g$: the glass modulus of the first unloading slope $\mathrm dF/\mathrm dd = 8G_0a$
+  (least-squares line over the first 5 % of the retract, at least 4 samples), and of the
+  force at the start of a hold, whichever is larger; at least $1.5\,G_H$.
+* $\tau$: from the hold (time to relax by $1 - 1/e$ of the force drop) if there is one,
+  else a fifth of the lift duration. Time scales of the data: $\tau_\min$ = two sampling
+  intervals, $\tau_\max$ = ten times the duration.
+* $\Delta\gamma$: JKR with $\Delta\gamma_\mathrm{eff} = \Delta\gamma\,G_g/G_H$ (the paper's
+  slow limit): $\Delta\gamma = |F_\min|\,G_H/(1.5\pi R\,G_g)$ (the profile's radius at the
+  depth for other profiles), with $|F_\min|$ at least $10^{-3}$ of the force range.
+* the largest indentation $d_\max$ and the force range (scales of the two offsets).
+
+Several curves: geometric means (scales) and extremes (time ranges).
+
+Default bounds (:func:`default_bounds`) keep a fit from running off to $10^{-168}$ Pa:
+moduli in $[10^{-6}, 10^6]\,G_H$, viscosities in $[10^{-6}G_H\tau_\min,
+10^6G_H\tau_\max]$, relaxation times in $[\tau_\min, \tau_\max]$, $\Delta\gamma$ in
+$[10^{-6}, 10^{6}]$ times its estimate, the contact offset in $[-d_\max, d_\max/2]$, the
+force offset within ± the force range. A parameter the data push to a bound is reported
+at that bound (no standard error).
+
+Starts (:func:`search_starts`)
+------------------------------
+A Latin hypercube (the best of 20 designs by the smallest distance between points, fixed
+seed: the same data give the same starts) over physically bounded ranges: $G_\infty$
+over $\pm 2$ decades around $G_H$, the glass-to-relaxed ratio $G_g/G_\infty$ in
+$[1.02, 100]$, relaxation times from $\tau_\min$ to the duration, $\Delta\gamma$ over 3
+decades around its estimate, the contact offset within $\pm d_\max/4$ of the detection,
+the force offset within ±5 % of the force range. Start 0 is the data-based guess
+(:func:`initial_guess`) with the user's initial values.
+
+Nested models (:func:`nested_starts`): ``prony:N`` starts from the ``prony:N-1`` (or
+standard-model) optimum with one arm added, of modulus $10^{-3}G_\infty$ at each of several
+relaxation times (between and beyond the existing ones), and again with the arm just inside
+the lower bound of the moduli, whose loss is the simpler model's optimum to a relative
+~1e-5: a descent from there ends at most that much above the simpler fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+import jaxcontact as jc
+
+from ._curve import Curve
+from ._spec import ModelSpec, n_material, parameter_info
+
+__all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
+           "nested_starts", "latin_hypercube", "to_prony", "from_physical"]
+
+
+@dataclasses.dataclass(frozen=True)
+class DataScales:
+    """Scales of the data (SI; see the module docstring)."""
+
+    g_relaxed: float
+    g_glass: float
+    tau: float
+    tau_min: float
+    tau_max: float
+    duration: float
+    work_of_adhesion: float
+    depth: float
+    force_range: float
+
+
+def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
+    """G from F = 8 G (a d - I(a)) with g(a) = d; returns (G, a)."""
+    if isinstance(profile, jc.Parabola):
+        # plain floats: the general path runs a few eager JAX operations (~0.1 ms each)
+        R = float(profile.R)
+        a = math.sqrt(R * depth)
+        integral = a**3 / (3.0 * R)
+    else:
+        a = float(jc.profile_radius(profile, depth))
+        integral = float(profile.integral_g(a))
+    lever = 8.0 * (a * depth - integral)
+    return abs(force) / max(lever, 1e-300), a
+
+
+def _gm(x) -> float:
+    return float(np.exp(np.mean(np.log(np.asarray(x, dtype=float)))))
+
+
+def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales:
+    """:class:`DataScales` of the curves (see the module docstring)."""
+    gi, g0, tau, dg, tmin, tmax, dur, dmax, frng = ([] for _ in range(9))
+    for c in curves:
+        names = c.segment_names
+        r = c.segment == names.index("retract") if "retract" in names else np.ones(len(c), bool)
+        t, d, f = c.time[r], c.displacement[r], c.force[r]
+        if spec.model == "relaxed":
+            depth = float(d[0])
+        else:
+            depth = float(np.max(d[: max(1, len(d) // 20)]))
+        if not depth > 0 or len(d) < 2:
+            continue
+        g_h, a0 = _hertz_modulus(float(np.max(f[: max(1, len(f) // 20)])), depth, profile)
+        m = max(4, len(d) // 20)
+        dd = d[:m] - d[0]
+        slope = float(np.dot(dd, f[:m] - f[0]) / max(float(np.dot(dd, dd)), 1e-300))
+        g0_est = max(slope / (8.0 * a0), 1.5 * g_h)
+        tau_est = 0.2 * float(t[-1] - t[0])
+        if "hold" in names:
+            h = c.segment == names.index("hold")
+            th, fh = c.time[h] - c.time[h][0], c.force[h]
+            if len(fh) > 10 and fh[0] > fh[-1]:
+                target = fh[-1] + (fh[0] - fh[-1]) / math.e
+                k = int(np.argmax(fh <= target))
+                tau_est = max(float(th[k]), float(th[1]))
+                g0_est = max(g0_est, _hertz_modulus(float(fh[0]),
+                                                    float(np.max(c.displacement[h])),
+                                                    profile)[0])
+        rad = float(profile.R) if isinstance(profile, jc.Parabola) else a0 * a0 / depth
+        fmin = float(np.min(f))
+        dg.append(max(abs(fmin), 1e-3 * float(np.ptp(c.force))) * g_h
+                  / (1.5 * math.pi * rad * g0_est))
+        gi.append(g_h)
+        g0.append(g0_est)
+        tau.append(max(tau_est, 1e-300))
+        steps = np.diff(c.time)
+        tmin.append(2.0 * float(np.min(steps[steps > 0])) if np.any(steps > 0) else 1e-6)
+        dur.append(float(c.time[-1] - c.time[0]))
+        dmax.append(float(np.max(c.displacement)))
+        frng.append(float(np.ptp(c.force)))
+    if not gi:
+        raise ValueError("initial guess: no curve with a positive indentation at the start "
+                         "of its retract (is the contact point right?)")
+    duration = max(dur)
+    return DataScales(
+        g_relaxed=_gm(gi), g_glass=_gm(g0), tau=_gm(tau), tau_min=min(tmin),
+        tau_max=10.0 * duration, duration=duration, work_of_adhesion=_gm(dg),
+        depth=max(dmax), force_range=max(frng),
+    )
+
+
+def from_physical(spec: ModelSpec, g_inf: float, g_glass: float, taus, weights,
+                  work: float, delta: float = 0.0, f0: float = 0.0) -> dict[str, float]:
+    """Natural parameters of `spec` from relaxed and glass moduli, relaxation times and the
+    share of each arm in $G_g - G_\\infty$ (`weights`, summing to 1)."""
+    g_glass = max(g_glass, 1.0001 * g_inf)
+    if spec.rheology == "standard":
+        g0 = g_glass
+        g1 = g0 * g_inf / (g0 - g_inf)
+        out = {"G0": g0, "G1": g1, "eta1": float(taus[0]) * (g0 + g1)}
+    else:
+        out = {"G_inf": g_inf}
+        for k in range(spec.arms):
+            out[f"G_{k + 1}"] = (g_glass - g_inf) * float(weights[k])
+            out[f"tau_{k + 1}"] = float(taus[k])
+    out["work_of_adhesion"] = work
+    if spec.contact_offset:
+        out["contact_offset"] = delta
+    if spec.force_offset:
+        out["force_offset"] = f0
+    return out
+
+
+def initial_guess(curves: Sequence[Curve], spec: ModelSpec, profile,
+                  scales: DataScales | None = None) -> dict[str, float]:
+    """The data-based initial guess (natural units; see the module docstring)."""
+    s = data_scales(curves, spec, profile) if scales is None else scales
+    n = spec.arms
+    taus = s.tau * np.logspace(-1, 1, n) if n > 1 else [s.tau]
+    return from_physical(spec, s.g_relaxed, s.g_glass, taus, np.full(n, 1.0 / n),
+                         s.work_of_adhesion)
+
+
+def default_bounds(spec: ModelSpec, s: DataScales) -> dict[str, tuple[float, float]]:
+    """Default bounds of every parameter (natural units; see the module docstring)."""
+    g = s.g_relaxed
+    out = {}
+    for name, _, kind in parameter_info(spec):
+        if kind == "modulus":
+            out[name] = (1e-6 * g, 1e6 * g)
+        elif kind == "viscosity":
+            out[name] = (1e-6 * g * s.tau_min, 1e6 * g * s.tau_max)
+        elif kind == "time":
+            out[name] = (s.tau_min, s.tau_max)
+        elif kind == "adhesion":
+            out[name] = (1e-6 * s.work_of_adhesion, 1e6 * s.work_of_adhesion)
+        elif kind == "offset_length":
+            out[name] = (-s.depth, 0.5 * s.depth)
+        else:
+            out[name] = (-s.force_range, s.force_range)
+    return out
+
+
+def latin_hypercube(n: int, dim: int, *, seed: int = 0, designs: int = 20) -> np.ndarray:
+    """`n` points in $[0, 1)^\\mathrm{dim}$: the best of `designs` Latin hypercubes by the
+    smallest distance between two points (deterministic for a given seed)."""
+    rng = np.random.default_rng(seed)
+    best, best_d = None, -1.0
+    for _ in range(max(1, designs)):
+        u = (np.argsort(rng.random((dim, n)), axis=1).T + rng.random((n, dim))) / n
+        if n > 1:
+            diff = u[:, None, :] - u[None, :, :]
+            dist = np.sqrt(np.sum(diff * diff, axis=-1))
+            d = float(np.min(dist[np.triu_indices(n, 1)]))
+        else:
+            d = 0.0
+        if d > best_d:
+            best, best_d = u, d
+    return best
+
+
+def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
+                  ) -> list[dict[str, float]]:
+    """`n` starts of the global search (natural units; see the module docstring)."""
+    if n <= 0:
+        return []
+    arms = spec.arms
+    dim = 3 + arms + (arms - 1 if arms > 1 else 0) + 2
+    u = latin_hypercube(n, dim, seed=seed)
+
+    def logu(x, lo, hi):
+        return float(np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x))
+
+    out = []
+    tau_hi = max(s.duration, 2.0 * s.tau_min)
+    for row in u:
+        g_inf = logu(row[0], 1e-2 * s.g_relaxed, 1e2 * s.g_relaxed)
+        ratio = logu(row[1], 1.02, 100.0)
+        work = logu(row[2], s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)
+        taus = np.sort([logu(x, s.tau_min, tau_hi) for x in row[3:3 + arms]])
+        if arms > 1:
+            # arm shares from the remaining coordinates (sorted-uniform spacings)
+            cuts = np.sort(row[3 + arms:3 + 2 * arms - 1])
+            weights = np.diff(np.r_[0.0, cuts, 1.0])
+            weights = np.maximum(weights, 1e-3)
+            weights = weights / weights.sum()
+        else:
+            weights = np.ones(1)
+        delta = (row[-2] - 0.5) * 0.5 * s.depth
+        f0 = (row[-1] - 0.5) * 0.1 * s.force_range
+        out.append(from_physical(spec, g_inf, g_inf * ratio, taus, weights, work, delta, f0))
+    return out
+
+
+def to_prony(spec: ModelSpec, p: Mapping[str, float]) -> tuple[float, list, list, float]:
+    """`(G_inf, [G_k], [tau_k], work)` of natural parameters `p` of either rheology."""
+    if spec.rheology == "standard":
+        g0, g1, eta = p["G0"], p["G1"], p["eta1"]
+        g_inf = g0 * g1 / (g0 + g1)
+        return g_inf, [g0 - g_inf], [eta / (g0 + g1)], p["work_of_adhesion"]
+    n = spec.arms
+    return (p["G_inf"], [p[f"G_{k + 1}"] for k in range(n)],
+            [p[f"tau_{k + 1}"] for k in range(n)], p["work_of_adhesion"])
+
+
+def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
+                  s: DataScales) -> list[dict[str, float]]:
+    """Starts of `spec` (``prony:N``) from an optimum `p` of `simpler` (fewer arms)."""
+    if spec.rheology != "prony":
+        raise ValueError("nested starts are for a Prony series")
+    g_inf, gs, taus, work = to_prony(simpler, p)
+    add = spec.arms - len(gs)
+    if add < 0:
+        raise ValueError("the simpler model has more arms")
+    logt = np.sort(np.log(taus))
+    lo, hi = math.log(s.tau_min), math.log(s.tau_max)
+    cands = list(0.5 * (logt[1:] + logt[:-1]))
+    cands += [0.5 * (lo + logt[0]), 0.5 * (logt[-1] + hi)]
+    cands += [logt[0] - math.log(10.0), logt[-1] + math.log(10.0)]
+    cands = [c for c in cands if lo < c < hi]
+    out = []
+    # each candidate time twice: an arm of 1e-3 G_inf (explores), and one just inside the
+    # lower bound of the moduli (2e-6 of the Hertz estimate; `default_bounds`), whose model
+    # is the simpler one to about that relative amount, so the richer fit starts (and, the
+    # optimiser only descending, ends) at most that much above the simpler optimum
+    for c, g_add in [(c, g) for c in cands for g in (1e-3 * g_inf, 2e-6 * s.g_relaxed)]:
+        new_t = list(taus) + [math.exp(c)] * add
+        new_g = list(gs) + [g_add] * add
+        order = np.argsort(new_t)
+        q = {"G_inf": g_inf, "work_of_adhesion": work}
+        for k, j in enumerate(order):
+            q[f"G_{k + 1}"] = float(new_g[j])
+            q[f"tau_{k + 1}"] = float(new_t[j])
+        for extra in ("contact_offset", "force_offset"):
+            if extra in p:
+                q[extra] = p[extra]
+        if spec.contact_offset:
+            q.setdefault("contact_offset", 0.0)
+        if spec.force_offset:
+            q.setdefault("force_offset", 0.0)
+        out.append(q)
+    return out
+
+
+def n_search_dims(spec: ModelSpec) -> int:
+    """Number of free directions of a search (for sizing the default number of starts)."""
+    return n_material(spec) + 1 + int(spec.contact_offset) + int(spec.force_offset)

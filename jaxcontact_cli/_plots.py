@@ -1,0 +1,101 @@
+"""Figures (the top layer: matplotlib lives here, never in `jaxcontact` or `fitting`)."""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+import numpy as np
+
+__all__ = ["plot_fit"]
+
+_SEGMENT_COLOURS = {"approach": "tab:blue", "hold": "tab:orange", "retract": "tab:green"}
+_SEGMENTS = ("approach", "hold", "retract")
+
+
+def _fmt(v, s, status):
+    if status == "ok" and math.isfinite(s):
+        return f"{v:.4g} ± {s:.2g}"
+    if status == "fixed":
+        return f"{v:.4g} (fixed)"
+    return f"{v:.4g} ({status})"
+
+
+def plot_fit(result, path=None):
+    """Data and fit of a :class:`fitting.FitResult`; saved to `path` (PNG) if given.
+
+    Four panels: force against time (the hold shows), force against indentation, the
+    residuals (model − data)/σ against time (σ: the curve's noise), and the fitted values
+    with their standard errors and the fit quality. Colours mark the segments (approach,
+    hold, retract), the black line is the model; the dashed vertical line is the detected
+    contact point (indentation 0), the dotted one the fitted contact point (when the
+    contact offset was fitted). Returns the matplotlib figure.
+    """
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    data = result.data
+    valid = np.asarray(data.valid) > 0
+    ts, d, f = (np.asarray(x) for x in (data.ts, data.indentation, data.force))
+    seg = np.asarray(data.segment)
+    fm = np.asarray(result.model_force)
+    ff = np.asarray(result.fitted_force)
+    sigma = np.asarray(data.sigma)
+    noise = np.asarray(data.noise)
+    delta = result["contact_offset"] if result.spec.contact_offset else None
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8), gridspec_kw={"height_ratios": [3, 1.6]})
+    a_t, a_d, a_r, a_txt = ax[0, 0], ax[0, 1], ax[1, 0], ax[1, 1]
+    styles = ["-", "--", ":", "-."]
+    for c in range(data.n_curves):
+        m = valid[c]
+        label_curve = f" (curve {c + 1})" if data.n_curves > 1 else ""
+        for j, name in enumerate(_SEGMENTS):
+            s = m & (seg[c] == j)
+            if not s.any():
+                continue
+            kw = dict(ms=2.5, alpha=0.55, color=_SEGMENT_COLOURS[name])
+            lab = f"data, {name}" if c == 0 else None
+            a_t.plot(ts[c, s], f[c, s] * 1e9, ".", label=lab, **kw)
+            a_d.plot(d[c, s] * 1e6, f[c, s] * 1e9, ".", **kw)
+            a_r.plot(ts[c, s], (ff[c, s] - f[c, s]) / noise[c, s], ".", **kw)
+        ls = styles[c % len(styles)]
+        a_t.plot(ts[c, m], fm[c, m] * 1e9, ls, color="k", lw=1.2,
+                 label=f"model{label_curve}")
+        a_d.plot(d[c, m] * 1e6, fm[c, m] * 1e9, ls, color="k", lw=1.2)
+    a_d.axvline(0.0, color="grey", ls="--", lw=0.8, label="detected contact")
+    if delta is not None:
+        a_d.axvline(-delta * 1e6, color="tab:red", ls=":", lw=1.2, label="fitted contact")
+    for a in (a_t, a_d):
+        a.axhline(0.0, color="grey", lw=0.5)
+    a_t.set_xlabel("time [s]")
+    a_t.set_ylabel("force [nN] (compressive > 0)")
+    a_t.legend(fontsize=8, loc="best")
+    a_d.set_xlabel("indentation [µm]")
+    a_d.set_ylabel("force [nN]")
+    a_d.legend(fontsize=8, loc="best")
+    a_r.axhline(0.0, color="k", lw=0.5)
+    a_r.set_xlabel("time [s]")
+    a_r.set_ylabel("(model − data) / σ")
+    noise = ", ".join(f"{s * 1e12:.3g}" for s in sigma)
+    a_r.set_title(f"residuals in units of the noise σ = {noise} pN", fontsize=9)
+    a_txt.axis("off")
+    lines = [f"{result.spec.model} model, {result.rheology}",
+             f"R² = {result.r_squared:.4f} (all), {result.r_squared_contact:.4f} (in contact)",
+             f"χ²_red = {result.reduced_chi2:.3g}, converged: {result.converged}", ""]
+    for col, v, s, st in zip(result.columns, result.values, result.stderr, result.status,
+                             strict=True):
+        lines.append(f"{col:<24} {_fmt(float(v), float(s), st)}")
+    if result.warnings:
+        lines += ["", f"{len(result.warnings)} warning(s): see parameters.json"]
+    a_txt.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", family="monospace",
+               fontsize=8.5, transform=a_txt.transAxes)
+    src = ", ".join(pathlib.Path(c.source).name for c in result.curves if c.source)
+    fig.suptitle(src or "fit", fontsize=10)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig

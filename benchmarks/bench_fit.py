@@ -25,10 +25,7 @@ Writes the table with machine and date to `--out`. Run time about 10 min on 2 CP
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
 import pathlib
-import platform
 import statistics
 import time
 import warnings
@@ -36,6 +33,7 @@ import warnings
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _results import machine, write_table  # benchmarks/_results.py
 from scipy.optimize import least_squares
 
 import fitting
@@ -108,21 +106,14 @@ def main(argv=None):
     head = [
         "# Fit speed: the shipped oocyte curve (history model, contact point fitted)",
         "",
-        f"{datetime.date.today().isoformat()}, {platform.node()}, {os.cpu_count()} CPU cores "
-        f"(shared machine: other work may have run at the same time), jax {jax.__version__}; "
+        f"{machine()} (shared machine: other work may have run at the same time); "
         f"`python benchmarks/bench_fit.py --repeats {args.repeats}`. Cold: first call in the "
         "process (compilation included); warm: median of the repeats.",
         "",
         "| what | cold [s] | warm [s] | R² | R² in contact | χ² |",
         "|---|---|---|---|---|---|",
     ]
-    text = "\n".join(head + rows) + "\n"
-    out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(text)
-    tmp.replace(out)
-    print(text)
+    write_table(args.out, head + rows)
 
 
 if __name__ == "__main__":

@@ -30,14 +30,12 @@ Writes the table (with machine and date) to `--out` and prints it.
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
 import pathlib
-import platform
 import time
 import warnings
 
 import jax
+from _results import machine, write_table  # benchmarks/_results.py
 
 import fitting
 
@@ -109,8 +107,7 @@ def main(argv=None):
     head = [
         "# Fits of real curves: default search against brute force",
         "",
-        f"{datetime.date.today().isoformat()}, {platform.node()}, {platform.processor() or ''} "
-        f"{os.cpu_count()} CPU cores, jax {jax.__version__}; default starts "
+        f"{machine()}; default starts "
         f"{fitting.DEFAULT_STARTS}, brute force {args.brute} starts (another seed); radius "
         f"{args.radius:g} m; `python benchmarks/eval_real_fits.py {' '.join(args.files)}`.",
         "",
@@ -123,13 +120,7 @@ def main(argv=None):
         "reached | prony:2 ≥ standard | time default / brute [s] |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    text = "\n".join(head + rows) + "\n"
-    out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(text)
-    tmp.replace(out)
-    print(text)
+    write_table(args.out, head + rows)
 
 
 if __name__ == "__main__":

@@ -113,9 +113,8 @@ def write_samples(result, path) -> pathlib.Path:
     ts, d, f = (np.asarray(x) for x in (data.ts, data.indentation, data.force))
     seg = np.asarray(data.segment)
     fm = np.asarray(result.model_force)
-    ff = np.asarray(result.fitted_force)
+    res = result.normalised_residuals
     a = np.asarray(result.model_solution.contact_radius)
-    noise = np.asarray(data.noise)
     weight = np.asarray(data.weight)
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
@@ -125,7 +124,7 @@ def write_samples(result, path) -> pathlib.Path:
             for i in np.flatnonzero(valid[c]):
                 w.writerow([c, SEGMENTS[int(seg[c, i])], repr(float(ts[c, i])),
                             repr(float(d[c, i])), repr(float(f[c, i])), repr(float(fm[c, i])),
-                            repr(float((ff[c, i] - f[c, i]) / noise[c, i])),
+                            repr(float(res[c, i])),
                             repr(float(weight[c, i])), repr(float(a[c, i]))])
     return path
 

@@ -99,6 +99,15 @@ class FitResult:
         return self.as_dict()[canonical_name(name, self.names)]
 
     @property
+    def normalised_residuals(self) -> np.ndarray:
+        """$(F^\\mathrm{eff}_i - F_i)/\\sigma_i$ per sample, shape `(curves, samples)`
+        (padding included: mask with ``data.valid``): the fitted force minus the measured
+        one in units of the sample's noise, without the sample weight (``fit.csv``'s
+        `residual`, the figure's residual panel)."""
+        return ((np.asarray(self.fitted_force) - np.asarray(self.data.force))
+                / np.asarray(self.data.noise))
+
+    @property
     def rheology(self) -> str:
         """"standard" or "prony:N"."""
         return rheology_name(self.spec)

@@ -42,9 +42,8 @@ def plot_fit(result, path=None):
     ts, d, f = (np.asarray(x) for x in (data.ts, data.indentation, data.force))
     seg = np.asarray(data.segment)
     fm = np.asarray(result.model_force)
-    ff = np.asarray(result.fitted_force)
+    res = result.normalised_residuals
     sigma = np.asarray(data.sigma)
-    noise = np.asarray(data.noise)
     delta = result["contact_offset"] if result.spec.contact_offset else None
     fig, ax = plt.subplots(2, 2, figsize=(12, 8), gridspec_kw={"height_ratios": [3, 1.6]})
     a_t, a_d, a_r, a_txt = ax[0, 0], ax[0, 1], ax[1, 0], ax[1, 1]
@@ -60,7 +59,7 @@ def plot_fit(result, path=None):
             lab = f"data, {name}" if c == 0 else None
             a_t.plot(ts[c, s], f[c, s] * 1e9, ".", label=lab, **kw)
             a_d.plot(d[c, s] * 1e6, f[c, s] * 1e9, ".", **kw)
-            a_r.plot(ts[c, s], (ff[c, s] - f[c, s]) / noise[c, s], ".", **kw)
+            a_r.plot(ts[c, s], res[c, s], ".", **kw)
         ls = styles[c % len(styles)]
         a_t.plot(ts[c, m], fm[c, m] * 1e9, ls, color="k", lw=1.2,
                  label=f"model{label_curve}")

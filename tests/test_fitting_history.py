@@ -10,13 +10,13 @@ pads every subsampled curve to the same length), so few compilations serve the f
 """
 
 import csv
-import json
 import pathlib
 import warnings
 
 import numpy as np
 import pytest
 from test_fitting import D0, TRUE, R
+from test_fitting_models import _read_outputs, _write_csv
 
 import fitting
 import jaxcontact as jc
@@ -210,22 +210,3 @@ def test_compliant_history_fit_from_the_command_line(compliant_curve, tmp_path, 
         assert entry["stderr"] < 0.1 * v, (k, entry)
     assert {r["parameter"] for r in rows} == set(TRUE)
     assert table["converged"] and table["r_squared"] > 0.99
-
-
-def _write_csv(path, curve, segments=False):
-    header = "time_s,displacement_m,force_N"
-    cols = [curve.time, curve.displacement, curve.force]
-    with open(path, "w") as fh:
-        fh.write(header + (",segment\n" if segments else "\n"))
-        for i in range(len(curve)):
-            row = ",".join(repr(float(c[i])) for c in cols)
-            if segments:
-                row += "," + curve.segment_names[curve.segment[i]]
-            fh.write(row + "\n")
-
-
-def _read_outputs(out):
-    table = json.loads((out / "parameters.json").read_text())
-    with (out / "parameters.csv").open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    return table, rows

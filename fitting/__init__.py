@@ -6,9 +6,13 @@ Data in: :class:`Curve` and the loaders :func:`load_curve`, :func:`load_csv`,
 :func:`load_afm` with :func:`preprocess` (baseline, tip position, contact point).
 Identification: :func:`fit` (global search, uncertainty) → :class:`FitResult`;
 :func:`write_report` (``parameters.json``, ``parameters.csv``, ``fit.csv``);
-:func:`profile_likelihood`; :func:`solve` / :func:`solve_batch` for many problems.
+:func:`profile_likelihood`; :func:`fit_each` (force maps, many curves: one fit per
+curve in batched compiled calls) → :class:`FitEachResult`; :func:`solve` /
+:func:`solve_batch` for many problems.
 """
 
+from ._batch import FitEachResult as FitEachResult
+from ._batch import fit_each as fit_each
 from ._curve import DEFAULT_LIMITS as DEFAULT_LIMITS
 from ._curve import SEGMENT_KINDS as SEGMENT_KINDS
 from ._curve import ContactPoint as ContactPoint
@@ -18,6 +22,7 @@ from ._curve import Limits as Limits
 from ._curve import infer_segments as infer_segments
 from ._curve import resample as resample
 from ._curve import select_segments as select_segments
+from ._io_afm import FailedCurve as FailedCurve
 from ._io_afm import load_afm as load_afm
 from ._io_csv import load_csv as load_csv
 from ._least_squares import LBFGS as LBFGS
@@ -37,9 +42,11 @@ from ._parameters import make_parameterisation as make_parameterisation
 from ._prepare import CurveBatch as CurveBatch
 from ._prepare import prepare_curves as prepare_curves
 from ._prepare import select_samples as select_samples
+from ._prepare import stack_batches as stack_batches
 from ._preprocess import preprocess as preprocess
 from ._profile import profile_likelihood as profile_likelihood
 from ._report import result_table as result_table
+from ._report import write_each_report as write_each_report
 from ._report import write_report as write_report
 from ._result import FitResult as FitResult
 from ._result import ModelChoice as ModelChoice

@@ -2,16 +2,33 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import pathlib
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from ._curve import DEFAULT_LIMITS, DEFAULT_SEGMENT_NAMES, Curve, DataError, Limits
 from ._preprocess import preprocess
 
-__all__ = ["load_afm"]
+__all__ = ["load_afm", "FailedCurve"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FailedCurve:
+    """A curve of a multi-curve file (force map, QI series) that could not be made into a
+    :class:`Curve`: where it came from (`source`, its position `index` in the file, the
+    file's `metadata` of that curve: grid indices and positions of a map) and why
+    (`reason`). :func:`load_afm` returns it in place of the curve with
+    ``on_error="keep"``; :func:`fitting.fit_each` reports it as a failed point."""
+
+    source: str
+    index: int
+    reason: str
+    metadata: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 _MODALITY_SEGMENTS = {
@@ -30,8 +47,9 @@ def load_afm(
     contact_point: str | None = "detect",
     modality: str | None = None,
     limits: Limits | None = DEFAULT_LIMITS,
+    on_error: str = "raise",
     **preprocess_kw,
-) -> list[Curve]:
+) -> list[Curve | FailedCurve]:
     """Load the curves of an AFM file through ``afmformats.load_data``.
 
     Reads whatever afmformats reads (JPK ``.jpk-force``, ``.jpk-force-map``,
@@ -59,6 +77,9 @@ def load_afm(
       overrides it and rescales the force by ``k_arg / k_file`` (the instrument measured
       the deflection, ``F = k d``); it is only *required* when the file has none.
     * Then :func:`preprocess` (``baseline``, ``contact_point`` and ``preprocess_kw``).
+    * ``on_error``: ``"raise"`` (a curve that cannot be loaded or preprocessed is a
+      `DataError` for the file) or ``"keep"`` (it is returned as a :class:`FailedCurve`
+      with the reason, and the other curves load: a force map with a few bad points).
 
     Raises:
         ImportError: afmformats is not installed (``pip install jaxcontact[afm]``).
@@ -72,6 +93,8 @@ def load_afm(
         raise ImportError(
             "reading AFM files needs afmformats: pip install 'jaxcontact[afm]'"
         ) from exc
+    if on_error not in ("raise", "keep"):
+        raise ValueError(f"on_error must be 'raise' or 'keep'; got {on_error!r}")
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
@@ -99,9 +122,20 @@ def load_afm(
                            contact_point, limits, preprocess_kw)
             )
         except ValueError as exc:
+            if on_error == "keep":
+                curves.append(FailedCurve(str(path), n, " ".join(str(exc).split()),
+                                          _plain_metadata(ds)))
+                continue
             where = f"{path}" if len(datasets) == 1 else f"{path} (curve {n})"
             raise DataError(f"{where}: {exc}") from None
     return curves
+
+
+def _plain_metadata(ds) -> dict:
+    try:
+        return dict(ds.metadata)
+    except Exception:  # noqa: BLE001 - metadata of a broken curve are optional
+        return {}
 
 
 def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, pkw):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pathlib
 
 from ._curve import Curve, DataError
-from ._io_afm import load_afm
+from ._io_afm import FailedCurve, load_afm
 from ._io_csv import load_csv
 
 __all__ = ["load_curve", "TABLE_SUFFIXES", "supported_formats"]
@@ -65,7 +65,8 @@ def _afm_options(path: pathlib.Path, kw: dict) -> dict:
     return {k: v for k, v in kw.items() if k not in _TABLE_ONLY}
 
 
-def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
+def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
+               ) -> list[Curve | FailedCurve]:
     """Load the curves of one file, choosing the reader from the suffix and content.
 
     **Arguments:**
@@ -73,6 +74,10 @@ def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
     - `path`: the file.
     - `format`: ``None`` (choose), ``"csv"`` (:func:`load_csv`) or ``"afm"``
       (:func:`load_afm`, through afmformats).
+    - `on_error`: for an instrument file with several curves (force map, QI series):
+      ``"raise"`` (one bad curve is an error for the file) or ``"keep"`` (it is returned
+      as a :class:`FailedCurve` with its reason; see :func:`load_afm`). A table holds
+      one curve; its errors are raised.
     - `**kw`: passed to the chosen reader (e.g. ``baseline``, ``contact_point``,
       ``units``, ``spring_constant``).
 
@@ -87,7 +92,8 @@ def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
 
     **Returns:**
 
-    A list of :class:`Curve` (one per curve in the file; a table holds one).
+    A list of :class:`Curve` (one per curve in the file; a table holds one), with
+    :class:`FailedCurve` records in place of bad curves for ``on_error="keep"``.
 
     **Raises:**
 
@@ -100,22 +106,24 @@ def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
         raise FileNotFoundError(f"no such file: {path}")
     if format not in (None, "csv", "afm"):
         raise ValueError(f"format must be 'csv', 'afm' or None, got {format!r}")
+    if on_error not in ("raise", "keep"):
+        raise ValueError(f"on_error must be 'raise' or 'keep'; got {on_error!r}")
     if format == "csv":
         return [load_csv(path, **kw)]
     if format == "afm":
-        return load_afm(path, **kw)
+        return load_afm(path, on_error=on_error, **kw)
     if path.stat().st_size == 0:
         raise DataError(f"{path}: the file is empty")
     suffix = path.suffix.lower()
     if suffix in TABLE_SUFFIXES:
         if _claimed_by_afmformats(path):
-            return load_afm(path, **_afm_options(path, kw))
+            return load_afm(path, on_error=on_error, **_afm_options(path, kw))
         try:
             return [load_csv(path, **kw)]
         except DataError as table_error:
             if any("detect" not in r.recipe for r in _afm_recipes(path.suffix)):
                 try:
-                    return load_afm(path, **_afm_options(path, kw))
+                    return load_afm(path, on_error=on_error, **_afm_options(path, kw))
                 except DataError as afm_error:
                     # both readers failed: say why each did
                     t = str(table_error).removeprefix(f"{path}: ")
@@ -124,7 +132,7 @@ def load_curve(path, *, format: str | None = None, **kw) -> list[Curve]:
                                     f"read by afmformats: {a}") from None
             raise table_error from None
     if _afm_recipes(path.suffix):
-        return load_afm(path, **kw)
+        return load_afm(path, on_error=on_error, **kw)
     raise DataError(
         f"{path}: unsupported file type {path.suffix or '(no suffix)'!r}; supported: "
         f"{supported_formats()}"

@@ -9,8 +9,12 @@ How :func:`fit` finds the optimum
    series also the nested starts from the simpler model's optimum) each run to
    convergence (`rtol`, at most `max_steps` iterations) in one compiled call, scheduled
    as a pool of lanes (:func:`fitting._least_squares.run_pool`: a lane whose start has
-   converged takes the next one). The smallest $\chi^2$ wins; the pool also returns the
-   Jacobian of every end point, so the best one's is reused for the uncertainty.
+   converged takes the next one). Then up to `local_rounds` rounds of as many starts
+   around the best end points (:func:`fitting._start.local_starts`: the best continued,
+   pattern moves along the line of the best optima, a small Latin hypercube), the same
+   compiled call, until a round no longer lowers $\chi^2$. The smallest $\chi^2$ wins;
+   the pool also returns the Jacobian of every end point, so the best one's is reused
+   for the uncertainty.
 3. **Uncertainty** (:func:`fitting._uncertainty.gauss_newton`), statistics ($R^2$ over all
    samples and over the samples in contact, reduced $\chi^2$, AIC, BIC) and warnings
    about the model's validity (contact radius beyond $0.3R$ for a parabola; the relaxed
@@ -37,6 +41,7 @@ local devices.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import sys
@@ -64,16 +69,27 @@ from ._spec import (
     parameter_info,
     rheology_name,
 )
-from ._start import data_scales, default_bounds, initial_guess, nested_starts, search_starts
+from ._start import (
+    data_scales,
+    default_bounds,
+    initial_guess,
+    local_starts,
+    nested_starts,
+    search_starts,
+)
 from ._uncertainty import IdentifiabilityWarning, ModelValidityWarning, gauss_newton
 
-__all__ = ["OPTIMISERS", "fit", "solve", "solve_batch", "DEFAULT_STARTS"]
+__all__ = ["OPTIMISERS", "fit", "solve", "solve_batch", "DEFAULT_STARTS",
+           "DEFAULT_LOCAL_ROUNDS"]
 
 #: The optimisers of :func:`fit` and :func:`solve`.
 OPTIMISERS = ("lm", "lbfgs")
 
 #: Default number of starts of the global search.
 DEFAULT_STARTS = 16
+
+#: Default largest number of local rounds after the global search.
+DEFAULT_LOCAL_ROUNDS = 3
 
 
 def _fn(spec: ModelSpec):
@@ -123,12 +139,15 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
 
 def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0s, *,
                 workers: int = 8, rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8,
-                max_steps: int = 200, optimiser: str = "lm", devices=None):
+                max_steps: int = 200, optimiser: str = "lm", devices=None,
+                keep_jacobian: bool = False):
     """Independent problems in one compiled call, scheduled as a pool of `workers` lanes.
 
     `params`, `datas` and `z0s` carry a leading problem axis (stack equally shaped problems
     with ``jax.tree.map(lambda *x: jnp.stack(x), *problems)``; the free parameters must be
-    the same); one start per problem. Returns `(z, chi2, ok, steps)` per problem.
+    the same); one start per problem. Returns `(z, chi2, ok, steps)` per problem, and with
+    `keep_jacobian` also the residuals `r` and their Jacobian `J` with respect to `z` at the
+    end point of each (Levenberg–Marquardt only).
 
     `devices`: the devices to spread the problems over (default: every local device of
     JAX's default backend). With more than one, the problems are split into equal shares
@@ -141,7 +160,8 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     n = z0s.shape[0]
     n_dev = max(1, min(len(devices), n))
     opts = dict(workers=int(workers), rtol=float(rtol), atol=float(atol), gtol=float(gtol),
-                max_steps=int(max_steps), optimiser=optimiser)
+                max_steps=int(max_steps), optimiser=optimiser,
+                keep_jacobian=bool(keep_jacobian))
     if n_dev == 1:
         with jax.default_device(devices[0]):
             return _solve_batch(spec, params, datas, z0s, **opts)
@@ -157,11 +177,12 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     return tuple(x.reshape((n_dev * share,) + x.shape[2:])[:n] for x in out)
 
 
-@functools.partial(jax.jit, static_argnames=_OPTIONS)
+@functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))
 def _solve_batch(spec, params, datas, z0s, *, workers, rtol, atol, gtol, max_steps,
-                 optimiser):
+                 optimiser, keep_jacobian):
     solver = _solver(optimiser, rtol, atol, gtol, max_steps)
-    return run_pool(solver, _fn(spec), z0s, (params, datas), workers)
+    return run_pool(solver, _fn(spec), z0s, (params, datas), workers,
+                    keep_jacobian=keep_jacobian)
 
 
 @functools.lru_cache(maxsize=16)
@@ -214,17 +235,6 @@ def _r2(model, data, mask) -> float:
     return 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
 
 
-def _distinct(z: np.ndarray, order: np.ndarray, k: int, tol: float = 1e-3) -> list[int]:
-    """The first `k` indices of `order` whose rows of `z` differ from those taken."""
-    out: list[int] = []
-    for i in order:
-        if all(np.max(np.abs(z[i] - z[j])) > tol for j in out):
-            out.append(int(i))
-        if len(out) == k:
-            break
-    return out
-
-
 def _check_options(n_starts, max_steps, optimiser, rtol):
     for name, v, lo in (("n_starts", n_starts, 1), ("max_steps", max_steps, 1)):
         if v is not None and (not isinstance(v, int | np.integer) or v < lo):
@@ -233,6 +243,51 @@ def _check_options(n_starts, max_steps, optimiser, rtol):
         raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
     if not (isinstance(rtol, int | float) and 0 < rtol < 1):
         raise ValueError(f"rtol must be a number in (0, 1); got {rtol!r}")
+
+
+def _options(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
+             bounds, contact_point, force_offset, n_starts, max_samples, cells, max_steps,
+             optimiser, rtol, seed, local_rounds):
+    """Checked options of :func:`fit` (`ValueError` naming the argument): the curves as a
+    list, the options of every step of the chain of models, and the chain (rheologies)."""
+    if isinstance(curves, Curve):
+        curves = [curves]
+    curves = list(curves)
+    if not curves or not all(isinstance(c, Curve) for c in curves):
+        raise ValueError("curves: give a Curve or a non-empty list of Curve objects")
+    n_starts = DEFAULT_STARTS if n_starts is None else n_starts
+    _check_options(n_starts, max_steps, optimiser, rtol)
+    if not (isinstance(local_rounds, int | np.integer) and local_rounds >= 0):
+        raise ValueError(f"local_rounds must be an integer >= 0; got {local_rounds!r}")
+    if contact_point not in (None, "fit", "fixed"):
+        raise ValueError(f"contact_point must be 'fit', 'fixed' or None; got {contact_point!r}")
+    if contact_point is None:
+        detected = any(c.contact is not None and c.contact.method != "none" for c in curves)
+        contact_point = "fit" if detected else "fixed"
+    if profile is None:
+        if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
+                                  and radius > 0):
+            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
+        profile = jc.Parabola(float(radius))
+    elif radius is not None:
+        raise ValueError("give either radius or profile, not both")
+    if spring_constant is not None:
+        ks = np.atleast_1d(np.asarray(spring_constant, dtype=float))
+        if not np.all(np.isfinite(ks) & (ks > 0)):
+            raise ValueError(f"spring_constant must be finite and > 0 [N/m]; got "
+                             f"{spring_constant!r}")
+    if rheology == "auto":
+        chain = ["standard", "prony:2", "prony:3"]
+    else:
+        spec0 = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells)
+        chain = ["standard"] + [f"prony:{k}" for k in range(2, spec0.arms + 1)] \
+            if spec0.rheology == "prony" and spec0.arms > 1 else [rheology]
+    opts = dict(radius=radius, profile=profile, model=model, spring_constant=spring_constant,
+                initial=initial, fixed=fixed, bounds=bounds, contact_point=contact_point,
+                force_offset=force_offset, n_starts=n_starts, max_samples=max_samples,
+                cells=cells, max_steps=max_steps, optimiser=optimiser, rtol=rtol, seed=seed,
+                local_rounds=int(local_rounds))
+    return curves, opts, chain
 
 
 def fit(
@@ -256,6 +311,7 @@ def fit(
     optimiser: str = "lm",
     rtol: float = 1e-8,
     seed: int = 0,
+    local_rounds: int = DEFAULT_LOCAL_ROUNDS,
 ) -> FitResult:
     r"""Identify the rheology, $\Delta\gamma$ (and the contact point) from one or more curves.
 
@@ -287,6 +343,10 @@ def fit(
     - `progress`: print the stages to stderr. `optimiser`: "lm" (Levenberg–Marquardt) or
       "lbfgs" (optax L-BFGS). `rtol`:
       convergence tolerance. `seed`: of the Latin hypercube.
+    - `local_rounds`: at most this many further rounds of as many starts around the best
+      end points (:func:`fitting._start.local_starts`; they reuse the compiled search and
+      stop when a round does not lower $\chi^2$), default
+      :data:`DEFAULT_LOCAL_ROUNDS`; 0: the global search alone.
 
     **Returns:** a :class:`FitResult` (print it for a summary). Parameters the data do not
     determine, or that sit at a bound, are named in its `warnings` and `status` (also
@@ -295,40 +355,12 @@ def fit(
     **Raises:** `ValueError` naming the argument for bad options or data.
     """
     show = _Progress(progress)
-    if isinstance(curves, Curve):
-        curves = [curves]
-    curves = list(curves)
-    if not curves or not all(isinstance(c, Curve) for c in curves):
-        raise ValueError("curves: give a Curve or a non-empty list of Curve objects")
-    n_starts = DEFAULT_STARTS if n_starts is None else n_starts
-    _check_options(n_starts, max_steps, optimiser, rtol)
-    if contact_point not in (None, "fit", "fixed"):
-        raise ValueError(f"contact_point must be 'fit', 'fixed' or None; got {contact_point!r}")
-    if contact_point is None:
-        detected = any(c.contact is not None and c.contact.method != "none" for c in curves)
-        contact_point = "fit" if detected else "fixed"
-    if profile is None:
-        if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
-                                  and radius > 0):
-            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
-        profile = jc.Parabola(float(radius))
-    elif radius is not None:
-        raise ValueError("give either radius or profile, not both")
-    if spring_constant is not None:
-        ks = np.atleast_1d(np.asarray(spring_constant, dtype=float))
-        if not np.all(np.isfinite(ks) & (ks > 0)):
-            raise ValueError(f"spring_constant must be finite and > 0 [N/m]; got "
-                             f"{spring_constant!r}")
-    if rheology == "auto":
-        chain = ["standard", "prony:2", "prony:3"]
-    else:
-        spec0 = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells)
-        chain = ["standard"] + [f"prony:{k}" for k in range(2, spec0.arms + 1)] \
-            if spec0.rheology == "prony" and spec0.arms > 1 else [rheology]
-    opts = dict(radius=radius, profile=profile, model=model, spring_constant=spring_constant,
-                initial=initial, fixed=fixed, bounds=bounds, contact_point=contact_point,
-                force_offset=force_offset, n_starts=n_starts, max_samples=max_samples,
-                cells=cells, max_steps=max_steps, optimiser=optimiser, rtol=rtol, seed=seed)
+    curves, opts, chain = _options(
+        curves, radius=radius, profile=profile, model=model, rheology=rheology,
+        spring_constant=spring_constant, initial=initial, fixed=fixed, bounds=bounds,
+        contact_point=contact_point, force_offset=force_offset, n_starts=n_starts,
+        max_samples=max_samples, cells=cells, max_steps=max_steps, optimiser=optimiser,
+        rtol=rtol, seed=seed, local_rounds=local_rounds)
     results: list[FitResult] = []
     for rh in chain:
         previous = results[-1] if results else None
@@ -356,11 +388,22 @@ def fit(
     return chosen
 
 
-def _fit_one(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
-             bounds, contact_point, force_offset, n_starts, max_samples, cells, max_steps,
-             optimiser, rtol, seed, previous, show, warn) -> FitResult:
-    timings = {}
-    t_start = time.perf_counter()
+@dataclasses.dataclass
+class _Problem:
+    """One identification problem: the model, the parameterisation, the prepared data and
+    the starts of the global search (rows of `zs`, free vectors)."""
+
+    spec: ModelSpec
+    info: list
+    names: list[str]
+    param: Parameterisation
+    data: CurveBatch
+    zs: np.ndarray
+
+
+def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
+             contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
+             **_) -> _Problem:
     spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
@@ -380,17 +423,64 @@ def _fit_one(curves, *, radius, profile, model, rheology, spring_constant, initi
         starts += nested_starts(spec, previous.spec, previous.as_dict(), scales)
     zs = np.stack([param.z_of(param.to_internal([s.get(n, guess[n]) for n in names]))
                    for s in starts])
-    show(f"{spec.model} model, {rheology_name(spec)}: {data.n_curves} curve(s), "
-         f"{data.n_samples} samples (standing for {data.n_measured} measured), "
-         f"{len(param.free)} free parameter(s), {len(starts)} start(s)")
+    return _Problem(spec, info, names, param, data, zs)
+
+
+def _best_loss(chi2) -> float:
+    chi2 = np.asarray(chi2, dtype=float)
+    return float(np.min(np.where(np.isfinite(chi2), chi2, np.inf)))
+
+
+def _improved(chi2, before: float) -> bool:
+    """A round improved the best loss by more than a relative 1e-7."""
+    return _best_loss(chi2) < before * (1.0 - 1e-7)
+
+
+def _merge(out, new):
+    """The outputs of two rounds of starts, one after the other."""
+    return tuple(np.concatenate([np.asarray(a), np.asarray(b)]) for a, b in
+                 zip(out, new, strict=True))
+
+
+def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
+    timings = {}
+    t_start = time.perf_counter()
+    pb = _problem(curves, rheology=rheology, previous=previous, **opts)
+    show(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} curve(s), "
+         f"{pb.data.n_samples} samples (standing for {pb.data.n_measured} measured), "
+         f"{len(pb.param.free)} free parameter(s), {len(pb.zs)} start(s)")
     timings["prepare"] = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
-    solver = _solver(optimiser, float(rtol), 1e-9, 1e-8, int(max_steps))
-    out = jax.device_get(_search(spec, param, data, jnp.asarray(zs), solver,
-                                 min(8, len(zs))))
+    solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8,
+                     int(opts["max_steps"]))
+
+    def run(zs):
+        return jax.device_get(_search(pb.spec, pb.param, pb.data, jnp.asarray(zs), solver,
+                                      min(8, len(zs))))
+
+    out = run(pb.zs)
+    for k in range(opts["local_rounds"]):
+        best = _best_loss(out[1])
+        out = _merge(out, run(local_starts(pb.param, out[0], out[1], len(pb.zs),
+                                           seed=opts["seed"] + 1 + k)))
+        show(f"local round {k + 1}: chi2 {best:.8g} -> {_best_loss(out[1]):.8g}")
+        if not _improved(out[1], best):
+            break
+    timings["optimise"] = time.perf_counter() - t0
+    return _finish(pb, curves, opts["profile"], out, opts["optimiser"], show=show,
+                   warn=warn, timings=timings, t_start=t_start)
+
+
+def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timings,
+            t_start) -> FitResult:
+    """The :class:`FitResult` of problem `pb` from the search's output `out` (`(z, chi2, ok,
+    steps[, r, J])` of every start, J with respect to z)."""
+    spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
+    t0 = time.perf_counter()
     z_all, chi2_all, ok_all, steps_all = (np.asarray(x) for x in out[:4])
-    best = int(np.argmin(np.where(np.isfinite(chi2_all), chi2_all, np.inf)))
+    finite = np.isfinite(chi2_all)
+    best = int(np.argmin(np.where(finite, chi2_all, np.inf)))
     z = z_all[best]
     u = np.asarray(param.internal(jnp.asarray(z)))
     dudz = np.asarray(jnp.diagonal(jax.jacfwd(lambda zz: param.internal(zz)[
@@ -400,12 +490,12 @@ def _fit_one(curves, *, radius, profile, model, rheology, spring_constant, initi
     else:
         r, J = (np.asarray(x) for x in internal_jacobian(spec, param, jnp.asarray(u), data))
     u, J = _sort_arms(spec, param, u, J)
-    order = np.argsort(np.where(np.isfinite(chi2_all), chi2_all, np.inf))
+    order = np.argsort(np.where(finite, chi2_all, np.inf))
     show(f"search: chi2 of the best starts {', '.join(f'{chi2_all[i]:.6g}' for i in order[:4])}"
          f"; converged {bool(ok_all[best])}, {int(steps_all[best])} steps")
     sol, model_force, fitted_force = jax.device_get(
         _model_at(spec, param, jnp.asarray(u), data))
-    timings["optimise"] = time.perf_counter() - t0
+    timings["optimise"] = timings.get("optimise", 0.0) + time.perf_counter() - t0
 
     t0 = time.perf_counter()
     p = np.asarray(param.to_natural(jnp.asarray(u)))
@@ -425,7 +515,7 @@ def _fit_one(curves, *, radius, profile, model, rheology, spring_constant, initi
     msgs += _validity_warnings(spec, curves, profile, radius_model, valid)
     if warn:
         for m in msgs[len(unc.warnings):]:
-            warnings.warn(m, ModelValidityWarning, stacklevel=3)
+            warnings.warn(m, ModelValidityWarning, stacklevel=4)
     fixed_mask = np.ones(len(names), dtype=bool)
     fixed_mask[list(param.free)] = False
     timings["uncertainty"] = time.perf_counter() - t0

@@ -56,7 +56,8 @@ import jaxcontact as jc
 from ._curve import Curve
 from ._spec import ModelSpec
 
-__all__ = ["CurveBatch", "prepare_curves", "select_samples", "sample_weights", "noise_level",
+__all__ = ["CurveBatch", "prepare_curves", "stack_batches", "select_samples", "sample_weights",
+           "noise_level",
            "SEGMENTS",
            "DEFAULT_MAX_SAMPLES"]
 
@@ -325,22 +326,48 @@ def prepare_curves(
         # subsampled: pad to the budget, so curves of any length share one shape (and one
         # compilation of the fit)
         n_max = max(n_max, budget)
+    return _stack_rows(rows, n_max, profile)
+
+
+_ROW_KEYS = ("ts", "drive", "indentation", "force", "lower", "upper", "segment", "index",
+             "contact", "noise", "weight")
+_CURVE_KEYS = ("sigma", "depth", "detaches", "stiffness")
+
+
+def _stack_rows(rows, n_max: int, profile) -> CurveBatch:
+    """A `CurveBatch` of per-curve rows (dicts of sample arrays and scalars), every curve
+    padded to `n_max` samples: the last sample repeated with weight 0, not valid, not in
+    contact, with a zero-width interval."""
 
     def pad(a):
         a = np.asarray(a)
         return np.concatenate([a, np.full(n_max - len(a), a[-1], dtype=a.dtype)])
 
-    stack = {key: np.stack([pad(r[key]) for r in rows])
-             for key in ("ts", "drive", "indentation", "force", "lower", "upper", "segment",
-                         "index", "contact", "noise", "weight")}
+    stack = {key: np.stack([pad(r[key]) for r in rows]) for key in _ROW_KEYS}
     valid = np.stack([(np.arange(n_max) < len(r["ts"])).astype(float) for r in rows])
-    # padding: zero-width intervals at the last time
     stack["weight"] = np.where(valid > 0, stack["weight"], 0.0)
     stack["contact"] = np.where(valid > 0, stack["contact"], 0.0)
     stack["lower"] = np.where(valid > 0, stack["lower"], stack["ts"])
     stack["upper"] = np.where(valid > 0, stack["upper"], stack["ts"])
-    scal = {key: np.array([r[key] for r in rows], dtype=float)
-            for key in ("sigma", "depth", "detaches", "stiffness")}
+    scal = {key: np.array([r[key] for r in rows], dtype=float) for key in _CURVE_KEYS}
     # one transfer of all arrays (a `jnp.asarray` each costs ~30 µs of dispatch)
     arrays = jax.device_put(dict(stack, valid=valid, **scal))
     return CurveBatch(**arrays, profile=profile)
+
+
+def stack_batches(batches: Sequence[CurveBatch], length: int | None = None) -> CurveBatch:
+    """One `CurveBatch` of the curves of `batches` (same profile), padded to a common
+    number of samples: the longest one, or `length` if that is larger (the shape of a
+    compiled fit)."""
+    batches = list(batches)
+    if not batches:
+        raise ValueError("batches: give at least one CurveBatch")
+    rows = []
+    for b in batches:
+        arr = jax.device_get({k: getattr(b, k) for k in _ROW_KEYS + _CURVE_KEYS + ("valid",)})
+        for c in range(b.n_curves):
+            m = int(np.sum(arr["valid"][c] > 0))
+            rows.append({**{k: arr[k][c, :m] for k in _ROW_KEYS},
+                         **{k: float(arr[k][c]) for k in _CURVE_KEYS}})
+    n_max = max([len(r["ts"]) for r in rows] + [int(length or 0)])
+    return _stack_rows(rows, n_max, batches[0].profile)

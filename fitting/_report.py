@@ -23,7 +23,15 @@ interval average of the model force (:mod:`fitting._objective`); ``weight``: the
 of measured samples the row stands for, its factor in χ² = Σ weight·residual²;
 ``contact_radius_m`` of the model).
 
-The figure is drawn by the command line layer (``jaxcontact_cli.plot_fit``).
+One fit per curve (:func:`fitting.fit_each`, :func:`write_each_report`): ``map.nc`` (the
+labelled dataset of :meth:`fitting.FitEachResult.to_dataset`, netCDF-4 through h5netcdf),
+``map.csv`` (one row per curve: ``curve,source,grid_x,grid_y,position_x_m,position_y_m``,
+then per parameter ``<name>_<unit>``, ``..._stderr``, ``..._status``, then
+``r_squared,r_squared_contact,reduced_chi2,converged,error``; empty cells where a value is
+missing) and ``parameters.json`` (model, counts, names and units, timings, and the rows of
+``map.csv`` as objects, strict JSON).
+
+The figures are drawn by the command line layer (``jaxcontact_cli``).
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ import numpy as np
 
 from ._prepare import SEGMENTS
 
-__all__ = ["write_report", "result_table", "write_samples"]
+__all__ = ["write_report", "result_table", "write_samples", "write_each_report"]
 
 
 def _num(x):
@@ -152,3 +160,55 @@ def write_report(result, out_dir) -> dict[str, pathlib.Path]:
 
 def _cell(x):
     return "" if x is None else repr(float(x))
+
+
+_POSITION = (("grid_x", "grid index x", int), ("grid_y", "grid index y", int),
+             ("position_x_m", "position x", float), ("position_y_m", "position y", float))
+
+
+def _each_rows(result) -> list[dict]:
+    rows = []
+    vals, errs = result.values(), result.stderr()
+    for i, (r, e) in enumerate(zip(result.results, result.errors, strict=True)):
+        row: dict = {"curve": i, "source": result.sources[i]}
+        meta = result.metadata[i]
+        for key, mkey, kind in _POSITION:
+            v = meta.get(mkey)
+            row[key] = None if v is None else (int(v) if kind is int else _num(v))
+        for j, col in enumerate(result.columns):
+            row[col] = _num(vals[i, j])
+            row[f"{col}_stderr"] = _num(errs[i, j])
+            row[f"{col}_status"] = r.status[j] if r is not None else "failed"
+        row.update(r_squared=_num(r.r_squared) if r is not None else None,
+                   r_squared_contact=_num(r.r_squared_contact) if r is not None else None,
+                   reduced_chi2=_num(r.reduced_chi2) if r is not None else None,
+                   converged=bool(r is not None and r.converged), error=e or "")
+        rows.append(row)
+    return rows
+
+
+def write_each_report(result, out_dir) -> dict[str, pathlib.Path]:
+    """Write ``map.nc``, ``map.csv`` and ``parameters.json`` of a
+    :class:`fitting.FitEachResult` into `out_dir` (see the module docstring). **Returns**
+    the paths by kind ("netcdf", "csv", "json")."""
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"netcdf": out / "map.nc", "csv": out / "map.csv", "json": out / "parameters.json"}
+    result.to_dataset().to_netcdf(paths["netcdf"], engine="h5netcdf")
+    rows = _each_rows(result)
+    with paths["csv"].open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(rows[0]))
+        for row in rows:
+            w.writerow(["" if v is None else (repr(v) if isinstance(v, float) else v)
+                        for v in row.values()])
+    table = {"model": result.model, "rheology": result.rheology,
+             "curves": len(result.results), "failed": result.n_failed,
+             "converged": result.n_converged, "parameters": list(result.columns),
+             "units": list(result.units),
+             "timings_s": {k: float(v) for k, v in result.timings.items()},
+             "sign_convention": "indentation positive into the sample, compressive force "
+                                "positive, adhesion negative",
+             "rows": rows}
+    paths["json"].write_text(json.dumps(table, indent=2, allow_nan=False) + "\n")
+    return paths

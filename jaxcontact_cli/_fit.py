@@ -1,5 +1,11 @@
 """``jaxcontact fit FILE [FILE ...] (--radius M | --profile SHAPE) --out DIR``.
 
+Several files are one fit with shared parameters (``--joint``, the default); a file with
+several curves (a force map, a QI series) or ``--each`` fits every curve on its own
+(:func:`fitting.fit_each`, batched compiled calls, failures isolated per curve) and writes
+``map.nc`` (xarray/netCDF, one row per curve with its grid position), ``map.csv``,
+``parameters.json`` (settings and counts) and ``map.png`` (a map image per parameter).
+
 Instrument files are read through afmformats (:func:`fitting.load_curve` decides by the
 file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-constant`` given
 with an instrument file overrides the file's value and selects the compliant loading model.
@@ -92,7 +98,17 @@ def add_fit_arguments(parser):
     parser.add_argument("--max-samples", type=int, default=None, metavar="N",
                         help="resample each segment to at most N samples (default: the "
                              "library's)")
-    parser.add_argument("--no-figure", action="store_true", help="skip fit.png")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--each", action="store_true",
+                       help="fit every curve on its own, in batched compiled calls (default "
+                            "when a file holds several curves: a force map or QI series); "
+                            "writes map.nc, map.csv, map.png and parameters.json")
+    group.add_argument("--joint", action="store_true",
+                       help="one fit to all curves with shared parameters (default for "
+                            "several single-curve files: e.g. different speeds)")
+    parser.add_argument("--chunk", type=int, default=8, metavar="N",
+                        help="with --each: curves per compiled call (default 8)")
+    parser.add_argument("--no-figure", action="store_true", help="skip fit.png / map.png")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     return parser
@@ -114,8 +130,10 @@ def _enable_cache():
         pass
 
 
-def load_inputs(args) -> list:
-    """The curves of ``args.files``; raises `UsageError` naming the option or the file."""
+def load_inputs(args) -> tuple[list, bool]:
+    """The curves of ``args.files`` and whether a file held several (a force map); raises
+    `UsageError` naming the option or the file. A bad curve of a multi-curve file is a
+    :class:`fitting.FailedCurve` in the list."""
     import fitting
 
     if args.units is not None:
@@ -128,7 +146,7 @@ def load_inputs(args) -> list:
         options["baseline"] = args.baseline
     if args.contact_point == "none":
         options["contact_point"] = "none"
-    curves = []
+    curves, multi = [], False
     for f in args.files:
         p = pathlib.Path(f)
         if not p.is_file():
@@ -136,23 +154,32 @@ def load_inputs(args) -> list:
         if args.units is not None:
             options["units"] = args.units
         try:
-            loaded = fitting.load_curve(p, spring_constant=args.spring_constant, **options)
+            loaded = fitting.load_curve(p, spring_constant=args.spring_constant,
+                                        on_error="keep", **options)
         except TypeError:
             raise UsageError(f"argument --units: {f} is not a table (CSV/TSV); its units "
                              "come from the file") from None
         except (ValueError, ImportError, OSError) as exc:
-            msg = " ".join(str(exc).split())
-            for prefix in (f"{p}: ", f"{f}: "):  # the loaders name the file already
-                msg = msg.removeprefix(prefix)
-            raise UsageError(f"FILE {f}: {msg}") from None
+            raise UsageError(f"FILE {f}: {_without_path(exc, p, f)}") from None
+        if len(loaded) == 1 and isinstance(loaded[0], fitting.FailedCurve):
+            raise UsageError(f"FILE {f}: {_without_path(loaded[0].reason, p, f)}")
+        multi = multi or len(loaded) > 1
         if args.segments:
             keep = [s.strip() for s in args.segments.split(",") if s.strip()]
             try:
-                loaded = [fitting.select_segments(c, *keep) for c in loaded]
+                loaded = [fitting.select_segments(c, *keep)
+                          if isinstance(c, fitting.Curve) else c for c in loaded]
             except (ValueError, KeyError) as exc:
                 raise UsageError(f"argument --segments: {f}: {exc}") from None
         curves += loaded
-    return curves
+    return curves, multi
+
+
+def _without_path(exc, p, f) -> str:
+    msg = " ".join(str(exc).split())
+    for prefix in (f"{p}: ", f"{f}: "):  # the loaders name the file already
+        msg = msg.removeprefix(prefix)
+    return msg
 
 
 def _check(args):
@@ -162,6 +189,8 @@ def _check(args):
         raise UsageError("argument --spring-constant: needs --model history")
     if args.starts is not None and args.starts < 1:
         raise UsageError(f"argument --starts: must be an integer >= 1; got {args.starts}")
+    if args.chunk < 1:
+        raise UsageError(f"argument --chunk: must be an integer >= 1; got {args.chunk}")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
     if args.max_samples is not None and args.max_samples < 2:
@@ -184,10 +213,16 @@ def run(args) -> int:
     """Run a fit from parsed arguments; returns the exit status (0: converged fit)."""
     profile, radius, fixed, bounds, initial = _check(args)
     folder = OutputFolder("--out", args.out, marker="parameters.json")
-    curves = load_inputs(args)
-
+    curves, multi = load_inputs(args)
+    each = args.each or (multi and not args.joint)
     _enable_cache()
     import fitting
+
+    if not each:
+        # a failed curve of a force map fitted jointly: an error naming it
+        for c in curves:
+            if isinstance(c, fitting.FailedCurve):
+                raise UsageError(f"FILE {c.source} (curve {c.index}): {c.reason}")
 
     options = dict(model=args.model, rheology=args.rheology, fixed=fixed or None,
                    bounds=bounds or None, initial=initial or None,
@@ -201,6 +236,8 @@ def run(args) -> int:
         options["radius"] = radius
     else:
         options["profile"] = profile
+    if each:
+        return _run_each(args, folder, curves, options)
     try:
         with warnings.catch_warnings():
             # the fit's warnings are in result.warnings: printed in the summary and written
@@ -228,5 +265,46 @@ def run(args) -> int:
         reason = "the optimiser stopped before convergence (max steps or no further decrease)"
         print(f"jaxcontact fit: error: the fit did not converge ({reason}); the report in "
               f"{out} is marked \"converged\": false", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_each(args, folder, curves, options) -> int:
+    """``--each``: one fit per curve (:func:`fitting.fit_each`); map.nc, map.csv,
+    parameters.json and map.png. Exit status 1 when a curve failed or did not converge
+    (the report names them), 2 when none could be fitted (nothing written)."""
+    import fitting
+
+    if args.rheology == "auto":
+        raise UsageError("argument --rheology: 'auto' is not offered with --each (a map "
+                         "needs one model for all points); choose standard or prony:N")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
+            warnings.simplefilter("ignore", fitting.ModelValidityWarning)
+            result = fitting.fit_each(curves, chunk=args.chunk, **options)
+    except ValueError as exc:
+        raise UsageError(" ".join(str(exc).split())) from None
+    if result.n_failed == len(curves):
+        raise UsageError("no curve could be fitted: " + "; ".join(
+            f"curve {i}: {e}" for i, e in enumerate(result.errors)))
+    staging = folder.stage()
+    try:
+        fitting.write_each_report(result, staging)
+        if not args.no_figure:
+            from ._plots import plot_map
+
+            plot_map(result, staging / "map.png")
+        out = folder.commit()
+    finally:
+        folder.discard()
+    if not args.quiet:
+        print(result.summary())
+        print(f"written to {out}")
+    bad = len(curves) - result.n_converged
+    if bad:
+        print(f"jaxcontact fit: error: {result.n_failed} curve(s) failed and "
+              f"{bad - result.n_failed} did not converge (see {out / 'map.csv'}, columns "
+              "error and converged)", file=sys.stderr)
         return 1
     return 0

@@ -7,7 +7,7 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["plot_fit"]
+__all__ = ["plot_fit", "plot_map"]
 
 _SEGMENT_COLOURS = {"approach": "tab:blue", "hold": "tab:orange", "retract": "tab:green"}
 _SEGMENTS = ("approach", "hold", "retract")
@@ -98,3 +98,96 @@ def plot_fit(result, path=None):
         fig.savefig(path, dpi=110)
         plt.close(fig)
     return fig
+
+
+def plot_map(result, path=None):
+    """Maps of a :class:`fitting.FitEachResult`; saved to `path` (PNG) if given.
+
+    One panel per free parameter and one for $R^2$ in contact. A force map (curves with
+    grid indices, one per grid point) is drawn as images on the grid (``grid_x`` to the
+    right, ``grid_y`` up; grey: no curve at that point, or a failed fit, marked ×);
+    other batches as values against the curve index with their standard errors (failed
+    curves marked × on the axis). Values at a bound or not determined are drawn hollow.
+    Returns the matplotlib figure.
+    """
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    first = next(r for r in result.results if r is not None)
+    free = [j for j in range(len(result.names)) if not first.fixed[j]]
+    panels = [(result.columns[j], j) for j in free] + [("R² in contact", None)]
+    vals, errs = result.values(), result.stderr()
+    r2 = np.array([r.r_squared_contact if r is not None else np.nan for r in result.results])
+    status = [[r.status[j] if r is not None else "failed" for j in range(len(result.names))]
+              for r in result.results]
+    try:
+        grid = result.grid()
+    except ValueError:
+        grid = None
+    ncol = min(3, len(panels))
+    nrow = -(-len(panels) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.6 * nrow), squeeze=False)
+    failed = np.array([e is not None for e in result.errors])
+    for k, (title, j) in enumerate(panels):
+        ax = axes[k // ncol, k % ncol]
+        values = r2 if j is None else vals[:, j]
+        if grid is not None:
+            # the whole grid of the map (its shape from the file's metadata), one pixel per
+            # grid point; points without a curve are grey
+            gx = np.asarray([m.get("grid index x", -1) for m in result.metadata], int)
+            gy = np.asarray([m.get("grid index y", -1) for m in result.metadata], int)
+            nx = max(int(result.metadata[0].get("grid shape x", 0) or 0), gx.max() + 1)
+            ny = max(int(result.metadata[0].get("grid shape y", 0) or 0), gy.max() + 1)
+            img = np.full((ny, nx), np.nan)
+            img[gy, gx] = values
+            finite = values[np.isfinite(values)]
+            log = j is not None and finite.size and np.all(finite > 0) and \
+                result.units[j] not in ("m", "N")
+            cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.85")
+            norm = matplotlib.colors.LogNorm() if log else None
+            im = ax.imshow(np.ma.masked_invalid(img), origin="lower", cmap=cmap, norm=norm,
+                           interpolation="nearest", extent=(-0.5, nx - 0.5, -0.5, ny - 0.5))
+            fig.colorbar(im, ax=ax)
+            odd = np.array([j is not None and st[j] not in ("ok", "fixed", "failed")
+                            for st in status])
+            for mask, mark, label in ((failed, "x", "failed"),
+                                      (odd, "o", "at a bound / not determined")):
+                if mask.any():
+                    ax.plot(gx[mask], gy[mask], mark, mfc="none", color="tab:red", ms=8,
+                            ls="none", label=label)
+            ax.set_xlabel("grid x")
+            ax.set_ylabel("grid y")
+            if failed.any() or odd.any():
+                ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18),
+                          ncol=2, frameon=False)
+        else:
+            idx = np.arange(len(values))
+            ok = np.array([st[j] == "ok" for st in status]) if j is not None else ~failed
+            e = np.zeros_like(values) if j is None else np.where(np.isfinite(errs[:, j]),
+                                                                 errs[:, j], 0.0)
+            ax.errorbar(idx[ok], values[ok], yerr=e[ok], fmt="o", ms=4, color="tab:blue")
+            rest = ~ok & ~failed
+            ax.plot(idx[rest], values[rest], "o", mfc="none", color="tab:blue",
+                    label="at a bound / not determined")
+            ax.plot(idx[failed], np.zeros(failed.sum()), "x", color="tab:red",
+                    label="failed")
+            if j is not None and np.all(values[np.isfinite(values)] > 0) and \
+                    result.units[j] not in ("m", "N"):
+                ax.set_yscale("log")
+            ax.set_xlabel("curve")
+            if rest.any() or failed.any():
+                ax.legend(fontsize=7)
+        ax.set_title(title, fontsize=10)
+    for k in range(len(panels), nrow * ncol):
+        axes[k // ncol, k % ncol].axis("off")
+    fig.suptitle(f"{result.model} model, {result.rheology}: {len(result.results)} curves, "
+                 f"{result.n_converged} converged, {result.n_failed} failed", fontsize=10)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig
+

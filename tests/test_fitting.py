@@ -102,6 +102,32 @@ def test_global_search_recovers_from_any_start():
     assert losses[0] < 1e-6 * losses[-1] or losses[-1] < 1e-10
 
 
+def test_local_starts_continue_step_along_the_ladder_and_stay_inside(noisy_fit):
+    # the starts of a local round: the best end point first, then pattern moves through
+    # it from the next-best distinct optima, then a hypercube around it; all inside the
+    # bounds (finite free vectors) and as many as asked
+    from fitting._start import PATTERN_STEPS, local_starts
+
+    param = noisy_fit.parameterisation
+    k = len(param.free)
+    rng = np.random.default_rng(0)
+    best = rng.normal(size=k)
+    others = [best + 0.3 * rng.normal(size=k), best - 0.5 * rng.normal(size=k)]
+    z_end = np.stack([others[0], best, others[1], best + 1e-5])  # the last: not distinct
+    chi2 = np.array([2.0, 1.0, 3.0, 1.0 + 1e-9])
+    zs = local_starts(param, z_end, chi2, 16, seed=3)
+    assert zs.shape == (16, k) and np.all(np.isfinite(zs))
+    np.testing.assert_array_equal(zs[0], best)
+    steps = len(PATTERN_STEPS)
+    for j, other in enumerate(others):  # in the order of their losses
+        for m, step in enumerate(PATTERN_STEPS):
+            np.testing.assert_allclose(zs[1 + j * steps + m], best + step * (best - other))
+    rest = zs[1 + 2 * steps:]
+    assert len({tuple(r) for r in rest}) == len(rest)  # distinct hypercube points
+    # a round that reuses the compiled search: as many starts as the first one
+    assert local_starts(param, z_end[:1], chi2[:1], 5).shape == (5, k)
+
+
 def test_recovery_noisy_within_standard_errors(noisy_fit):
     res = noisy_fit
     assert max(_errors(res).values()) < 0.05

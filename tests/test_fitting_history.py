@@ -136,6 +136,20 @@ def test_oocyte_history_fit():
     assert any("contact radius reaches" in w for w in res.warnings)
 
 
+@pytest.mark.slow
+def test_oocyte_default_search_reaches_brute_force():
+    """The issue's acceptance on the shipped curve: the default search (16 starts and
+    its local rounds) ends at least as low as a brute-force search of 64 other starts
+    (another seed) without local rounds. Before the local rounds the default ended 1.8 %
+    above the best known chi2 at R = 10 um (a ladder of optima in the contact offset)."""
+    pytest.importorskip("afmformats")
+    curve = fitting.load_afm(DATA / "oocyte-stress-relaxation-cell1-0008.jpk-force")[0]
+    default = _fit(curve, n_starts=None)
+    brute = _fit(curve, n_starts=64, seed=1, local_rounds=0)
+    assert default.chi2 <= brute.chi2 * (1 + 1e-6)
+    assert default.r_squared >= brute.r_squared - 1e-5
+
+
 # --------------------------------------------------------------------------------------
 # Compliant loading (history model, cantilever of 0.5 N/m)
 # --------------------------------------------------------------------------------------

@@ -298,10 +298,10 @@ def test_cli_jpk_inputs():
     pytest.importorskip("afmformats")
     path = str(DATA / "oocyte-stress-relaxation-cell1-0008.jpk-force")
     base = ["--radius", "40e-6", "--out", "unused", "--model", "history"]
-    (c,) = load_inputs(_args([path, *base]))
+    (c,), _ = load_inputs(_args([path, *base]))
     assert c.segment_names == ("rest", "approach", "hold", "retract")
     assert c.spring_constant == pytest.approx(1.0677, rel=1e-4)
-    (c2,) = load_inputs(_args([path, *base, "--spring-constant", "2.0"]))
+    (c2,), _ = load_inputs(_args([path, *base, "--spring-constant", "2.0"]))
     assert c2.spring_constant == 2.0
     # the raw deflection force scales with k; the baseline is removed the same way
     i = int(np.argmax(c.force))

@@ -1,0 +1,162 @@
+"""Many independent fits in batched calls (`fitting.fit_each`): force maps, failed curves.
+
+The second method is `fitting.fit` on each curve alone: a curve fitted in a batch must end
+where it ends alone. Synthetic retract curves (`jc.retract`) with known parameters at
+several map points; the real force map `tests/data/force-map-2x2.jpk-force-map` through
+the command line.
+"""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import fitting
+import jaxcontact as jc
+
+R = 12e-6
+D0 = 1e-6
+N = 50
+STARTS = 4
+# three map points with different materials (a stiffer, a softer, a more adhesive one)
+POINTS = [
+    {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 1e-3},
+    {"G0": 20e3, "G1": 4e3, "eta1": 6e3, "work_of_adhesion": 1e-3},
+    {"G0": 8e3, "G1": 6e3, "eta1": 9e3, "work_of_adhesion": 2e-3},
+]
+GRID = [(0, 0), (1, 0), (0, 1)]
+
+
+def _curve(p, *, noise=0.01, seed=0, v=2e-6, grid=(0, 0)):
+    rng = np.random.default_rng(seed)
+    ts = np.linspace(0.0, 3e-6 / v, N)
+    sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
+                     work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=v)
+    f = np.asarray(sol.force)
+    f = f + noise * np.ptp(f) * rng.standard_normal(N)
+    meta = {"grid index x": grid[0], "grid index y": grid[1],
+            "position x": 1e-6 * grid[0], "position y": 1e-6 * grid[1]}
+    return fitting.Curve(time=ts, displacement=np.asarray(sol.displacement), force=f,
+                         segment=np.zeros(N, int), segment_names=("retract",),
+                         source=f"point{grid}", metadata=meta)
+
+
+def _quiet(fn, *a, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
+        warnings.simplefilter("ignore", fitting.ModelValidityWarning)
+        return fn(*a, **kw)
+
+
+@pytest.fixture(scope="module")
+def curves():
+    return [_curve(p, seed=i, grid=g) for i, (p, g) in enumerate(zip(POINTS, GRID,
+                                                                    strict=True))]
+
+
+@pytest.fixture(scope="module")
+def each(curves):
+    # a failed load and a curve the relaxed model cannot use (no positive start depth)
+    failed = fitting.FailedCurve("map.jpk-force-map", 3, "no contact found on the approach",
+                                 {"grid index x": 1, "grid index y": 1})
+    bad = fitting.Curve(time=np.linspace(0, 1, N), displacement=np.linspace(-1e-6, -2e-6, N),
+                        force=np.zeros(N), segment=np.zeros(N, int),
+                        segment_names=("retract",), source="bad",
+                        metadata={"grid index x": 2, "grid index y": 0})
+    items = [curves[0], failed, curves[1], bad, curves[2]]
+    return _quiet(fitting.fit_each, items, radius=R, n_starts=STARTS, chunk=2,
+                  progress=False)
+
+
+def test_each_curve_ends_where_it_ends_alone(curves, each):
+    # the batch (chunks of 2, the last one padded; samples padded to a common length)
+    # against `fit` on each curve alone: the same optimum
+    for k, c in zip((0, 2, 4), curves, strict=True):
+        alone = _quiet(fitting.fit, c, radius=R, n_starts=STARTS, progress=False)
+        got = each.results[k]
+        assert got is not None and got.converged
+        assert got.chi2 == pytest.approx(alone.chi2, rel=1e-9)
+        np.testing.assert_allclose(got.values, alone.values, rtol=1e-6)
+        np.testing.assert_allclose(got.stderr, alone.stderr, rtol=1e-4)
+
+
+def test_each_recovers_every_point_within_its_errors(each):
+    # an independent check: the parameters the curves were made with
+    for k, p in zip((0, 2, 4), POINTS, strict=True):
+        res = each.results[k]
+        for name, true in p.items():
+            assert abs(res[name] - true) < 4 * res.stderr[res.names.index(name)], (k, name)
+
+
+def test_failures_are_isolated_and_named(each):
+    assert each.results[1] is None and "no contact found" in each.errors[1]
+    assert each.results[3] is None and "start depth" in each.errors[3]
+    assert each.n_failed == 2 and each.n_converged == 3
+    assert all(each.errors[k] is None for k in (0, 2, 4))
+    text = each.summary()
+    assert "curve 1 (x 1, y 1): failed" in text and "curve 3 (x 2, y 0): failed" in text
+
+
+def test_dataset_is_labelled_and_round_trips(each, tmp_path):
+    ds = each.to_dataset()
+    assert ds.sizes["curve"] == 5
+    assert list(ds["grid_x"].values) == [0, 1, 1, 2, 0]
+    assert ds["G0_Pa"].attrs["units"] == "Pa"
+    np.testing.assert_allclose(ds["G0_Pa"].values[[0, 2, 4]], each.values()[[0, 2, 4], 0])
+    assert np.isnan(ds["G0_Pa"].values[1]) and ds["G0_Pa_status"].values[1] == "failed"
+    assert ds["error"].values[3] != "" and ds["error"].values[0] == ""
+    assert ds.attrs["failed"] == 2
+    # positions only where every curve has them (the failed load has no position)
+    assert "position_x" not in ds.coords
+    path = tmp_path / "map.nc"
+    ds.to_netcdf(path, engine="h5netcdf")
+    import xarray as xr
+
+    back = xr.load_dataset(path, engine="h5netcdf")
+    np.testing.assert_allclose(back["G0_Pa"].values, ds["G0_Pa"].values)
+    grid = each.grid()
+    assert grid["G0_Pa"].dims == ("grid_y", "grid_x")
+    assert grid["G0_Pa"].sel(grid_x=1, grid_y=0).item() == pytest.approx(each.values()[2, 0])
+    assert np.isnan(grid["G0_Pa"].sel(grid_x=1, grid_y=1).item())
+
+
+def test_bad_options_are_named(curves):
+    with pytest.raises(ValueError, match="rheology: 'auto'"):
+        fitting.fit_each(curves, radius=R, rheology="auto")
+    with pytest.raises(ValueError, match="chunk"):
+        fitting.fit_each(curves, radius=R, chunk=0)
+    with pytest.raises(ValueError, match="none could be loaded"):
+        fitting.fit_each([fitting.FailedCurve("f", 0, "why")], radius=R)
+    with pytest.raises(ValueError, match="local_rounds"):
+        fitting.fit_each(curves, radius=R, local_rounds=-1)
+
+
+def test_force_map_file_through_the_command_line(tmp_path, capsys):
+    from jaxcontact_cli import main
+
+    out = tmp_path / "map"
+    rc = main(["fit", "tests/data/force-map-2x2.jpk-force-map", "--radius", "10e-6",
+               "--model", "relaxed", "--starts", "4", "--quiet", "--out", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["map.csv", "map.nc", "map.png", "parameters.json"]
+    summary = json.loads((out / "parameters.json").read_text())
+    assert summary["curves"] == 4 and summary["failed"] == 0
+    import xarray as xr
+
+    ds = xr.load_dataset(out / "map.nc", engine="h5netcdf")
+    assert sorted(ds["grid_x"].values.tolist()) == [0, 0, 9, 9]
+    assert np.all(ds["r_squared_contact"].values > 0.8)
+    rows = (out / "map.csv").read_text().splitlines()
+    assert rows[0].startswith("curve,source,grid_x,grid_y") and len(rows) == 5
+
+
+def test_force_map_with_no_usable_curve_is_one_line(tmp_path, capsys):
+    from jaxcontact_cli import main
+
+    rc = main(["fit", "tests/data/qi-2x2-2020.02.07.jpk-qi-data", "--radius", "10e-6",
+               "--model", "relaxed", "--out", str(tmp_path / "qi")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no contact found" in err and "Traceback" not in err
+    assert not (tmp_path / "qi").exists()

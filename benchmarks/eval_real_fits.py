@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 import time
 import warnings
 
@@ -63,7 +64,14 @@ def main(argv=None):
     ap.add_argument("--radius", type=float, default=10e-6, help="probe radius [m]")
     ap.add_argument("--max-samples", type=int, default=None)
     ap.add_argument("--out", default="benchmarks/results/real_fits.md")
+    ap.add_argument("--rheologies", default="standard,prony:2",
+                    help="comma-separated rheologies to compare (default standard,prony:2)")
+    ap.add_argument("--history-rheologies", default=None,
+                    help="the same for curves fitted with the history model (default: as "
+                         "--rheologies; prony:2 brute-force fits of long history curves take "
+                         "minutes each)")
     args = ap.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
 
     rows = []
     for path in args.files:
@@ -77,7 +85,9 @@ def main(argv=None):
             continue
         model = "history" if "hold" in curve.segment_names else "relaxed"
         chi2 = {}
-        for rheology in ("standard", "prony:2"):
+        chosen = args.history_rheologies if model == "history" and args.history_rheologies \
+            else args.rheologies
+        for rheology in [r.strip() for r in chosen.split(",") if r.strip()]:
             out = {}
             for label, starts, seed in (("default", None, 0), ("brute", args.brute, 1)):
                 try:
@@ -109,7 +119,8 @@ def main(argv=None):
         "",
         f"{machine()}; default starts "
         f"{fitting.DEFAULT_STARTS}, brute force {args.brute} starts (another seed); radius "
-        f"{args.radius:g} m; `python benchmarks/eval_real_fits.py {' '.join(args.files)}`.",
+        f"{args.radius:g} m; local rounds {fitting.DEFAULT_LOCAL_ROUNDS} in both; "
+        f"`python benchmarks/eval_real_fits.py {' '.join(args.argv)}`.",
         "",
         "R² over all fitted samples / over the samples in contact; χ² of the default and the "
         "brute-force search; *reached*: the default search ends at the brute-force χ² or "

@@ -32,6 +32,7 @@ from ._load import supported_formats as supported_formats
 from ._objective import effective_force as effective_force
 from ._objective import predict as predict
 from ._objective import residuals as residuals
+from ._optimise import DEFAULT_LOCAL_ROUNDS as DEFAULT_LOCAL_ROUNDS
 from ._optimise import DEFAULT_STARTS as DEFAULT_STARTS
 from ._optimise import OPTIMISERS as OPTIMISERS
 from ._optimise import fit as fit

@@ -7,6 +7,10 @@ the command line.
 """
 
 import json
+import os
+import subprocess
+import sys
+import textwrap
 import warnings
 
 import numpy as np
@@ -160,3 +164,36 @@ def test_force_map_with_no_usable_curve_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "no contact found" in err and "Traceback" not in err
     assert not (tmp_path / "qi").exists()
+
+
+FOUR_DEVICES = textwrap.dedent(
+    """
+    import json, warnings, jax
+    jax.config.update("jax_enable_x64", True)
+    import fitting
+    from tests.test_fitting_each import POINTS, GRID, R, STARTS, _curve
+    curves = [_curve(p, seed=i, grid=g) for i, (p, g) in enumerate(zip(POINTS, GRID))]
+    warnings.simplefilter("ignore")
+    res = fitting.fit_each(curves, radius=R, n_starts=STARTS, chunk=2, progress=False)
+    print(json.dumps(dict(n=len(jax.devices()), chi2=[r.chi2 for r in res.results],
+                          values=[list(map(float, r.values)) for r in res.results])))
+    """
+)
+
+
+@pytest.mark.slow
+def test_four_devices_match_one(curves):
+    # the chunks spread over 4 virtual CPU devices (solve_batch: one pool per device)
+    # end where one device ends
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4",
+               JAX_PLATFORMS="cpu", PYTHONPATH=os.getcwd())
+    out = subprocess.run([sys.executable, "-c", FOUR_DEVICES], env=env, capture_output=True,
+                         text=True, timeout=600, cwd=os.path.dirname(os.path.dirname(__file__)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["n"] == 4
+    one = _quiet(fitting.fit_each, curves, radius=R, n_starts=STARTS, chunk=2,
+                 progress=False)
+    for k, r in enumerate(one.results):
+        assert got["chi2"][k] == pytest.approx(r.chi2, rel=1e-9)
+        np.testing.assert_allclose(got["values"][k], r.values, rtol=1e-6)

@@ -1,0 +1,112 @@
+"""Force maps: curves fitted per second by `fitting.fit_each` against one `fitting.fit` per
+curve, in the same run.
+
+A synthetic map of `--curves` retract curves (`jc.retract`, relaxed start, 1 % noise, the
+standard model with G0, G1, η1 and Δγ varying from point to point by up to ±30 %),
+`--samples` samples each, fitted with the default search (16 starts and the local
+rounds), R = 12 µm. Timed: `fit_each` cold (compilation included) and warm, for each
+`--chunks` value; the loop of `fit` over the same curves (its compilation is shared by all
+curves after the first: equal shapes). Reported: curves/s, the ratio to the loop, and the
+largest relative difference of the fitted values between the two (the same optimum is
+expected).
+
+    python benchmarks/bench_fit_each.py [--curves 32] [--samples 60] [--chunks 8,32]
+        [--out benchmarks/results/fit_each.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+
+import jax
+import numpy as np
+from _results import machine, write_table  # benchmarks/_results.py
+
+import fitting
+import jaxcontact as jc
+
+jax.config.update("jax_enable_x64", True)
+
+R, D0, V = 12e-6, 1e-6, 2e-6
+BASE = {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 1e-3}
+
+
+def make_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(np.sqrt(n)))
+    out = []
+    for i in range(n):
+        p = {k: v * rng.uniform(0.7, 1.3) for k, v in BASE.items()}
+        ts = np.linspace(0.0, 3e-6 / V, samples)
+        sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
+                         work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=V)
+        f = np.asarray(sol.force)
+        f = f + 0.01 * np.ptp(f) * rng.standard_normal(samples)
+        out.append(fitting.Curve(
+            time=ts, displacement=np.asarray(sol.displacement), force=f,
+            segment=np.zeros(samples, int), segment_names=("retract",),
+            metadata={"grid index x": i % side, "grid index y": i // side}))
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--curves", type=int, default=32)
+    ap.add_argument("--samples", type=int, default=60)
+    ap.add_argument("--chunks", default="8,32")
+    ap.add_argument("--out", default="benchmarks/results/fit_each.md")
+    args = ap.parse_args(argv)
+    curves = make_map(args.curves, args.samples)
+    warnings.simplefilter("ignore")
+
+    t0 = time.perf_counter()
+    [fitting.fit(c, radius=R, progress=False) for c in curves]
+    t_cold = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    loop = [fitting.fit(c, radius=R, progress=False) for c in curves]
+    t_loop = time.perf_counter() - t0
+    ref = np.array([r.values for r in loop])
+    chi_ref = np.array([r.chi2 for r in loop])
+    rows = [f"| loop of `fit` | - | {t_cold:.1f} | {t_loop:.1f} | "
+            f"{args.curves / t_loop:.2f} | 1 | - | - |"]
+    print(rows[-1], flush=True)
+    for chunk in (int(c) for c in args.chunks.split(",")):
+        t0 = time.perf_counter()
+        fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
+        cold = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        res = fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
+        warm = time.perf_counter() - t0
+        diff = float(np.max(np.abs(res.values() / ref - 1)))
+        chi = np.array([r.chi2 for r in res.results])
+        lower = int(np.sum(chi <= chi_ref * (1 + 1e-9)))
+        rows.append(f"| `fit_each` | {chunk} | {cold:.1f} | {warm:.1f} | "
+                    f"{args.curves / warm:.2f} | {t_loop / warm:.2f} | {diff:.1e} | "
+                    f"{lower}/{args.curves} |")
+        print(rows[-1], flush=True)
+    head = [
+        "# Force-map fits: `fitting.fit_each` against a loop of `fitting.fit`",
+        "",
+        f"{machine()}, {jax.devices()[0].platform} ({len(jax.devices())} device(s)); "
+        f"{args.curves} synthetic curves × {args.samples} samples, relaxed model, default "
+        f"search ({fitting.DEFAULT_STARTS} starts, up to {fitting.DEFAULT_LOCAL_ROUNDS} "
+        f"local rounds); `python benchmarks/bench_fit_each.py {' '.join(sys.argv[1:])}`.",
+        "",
+        "Times in s. *cold*: the first call (compilation included); *warm*: the second; "
+        "ratio: the loop's warm time over the warm `fit_each` time; *max rel. diff.*: "
+        "largest relative difference of a fitted value from the loop's; *χ² ≤ loop*: curves "
+        "whose χ² is at most the loop's (a chunk runs its local rounds while any of its "
+        "curves improves, so a curve may get more rounds than alone).",
+        "",
+        "| method | chunk | cold [s] | warm [s] | curves/s (warm) | ratio | max rel. diff. | "
+        "χ² ≤ loop |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    write_table(args.out, head + rows)
+
+
+if __name__ == "__main__":
+    main()

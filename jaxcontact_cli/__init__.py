@@ -2,12 +2,22 @@
 
 It imports the forward model (:mod:`jaxcontact`) and the identification (:mod:`fitting`);
 nothing imports it. ``jaxcontact demo | simulate | fit`` (see ``jaxcontact
---help``); :func:`plot_fit` draws a `fitting.FitResult`.
+--help``); :func:`plot_fit` draws a `fitting.FitResult`, :func:`plot_map` a
+`fitting.FitEachResult`.
 """
 
 from ._main import build_parser as build_parser
 from ._main import console_main as console_main
 from ._main import main as main
-from ._plots import plot_fit as plot_fit
 
-__all__ = ["main", "console_main", "build_parser", "plot_fit"]
+__all__ = ["main", "console_main", "build_parser", "plot_fit", "plot_map"]
+
+
+def __getattr__(name):
+    # the figures import numpy and matplotlib only when asked for: the console script sets
+    # its signal handlers before any heavy import (an interruption is never swallowed)
+    if name in ("plot_fit", "plot_map"):
+        from . import _plots
+
+        return getattr(_plots, name)
+    raise AttributeError(f"module 'jaxcontact_cli' has no attribute {name!r}")

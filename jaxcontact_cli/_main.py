@@ -21,8 +21,6 @@ import sys
 import threading
 import traceback
 
-from jaxcontact import __version__
-
 from ._common import UsageError, run_cleanups
 
 __all__ = ["main", "console_main", "build_parser"]
@@ -42,6 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
             "forward simulation, sweeps and parameter identification. SI units throughout."
         ),
     )
+    from jaxcontact import __version__  # imports jax: after the signal handlers are set
+
     parser.add_argument("--version", action="version", version=f"jaxcontact {__version__}")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true",
@@ -109,13 +109,42 @@ class _Terminated(Exception):
     pass
 
 
-def _raise_terminated(signum, frame):  # pragma: no cover - exercised in a subprocess test
-    raise _Terminated
+_SIGNALLED: list[int] = []
+_RAISE = [False]
+
+
+def _on_signal(signum, frame):  # pragma: no cover - exercised in a subprocess test
+    # recorded, and raised only once the imports are done: an exception raised into an
+    # extension module while it initialises can crash the interpreter (SIGSEGV) or be
+    # swallowed by a library's bare `except:`; the command checks the record after them
+    _SIGNALLED.append(signum)
+    if _RAISE[0]:
+        raise _Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def _interrupted(command: str, signum: int):  # pragma: no cover - subprocess tests
+    run_cleanups()
+    _log(f"jaxcontact {command}: interrupted; no output was written or changed")
+    sys.stdout.flush()
+    os._exit(143 if signum == signal.SIGTERM else 130)  # not waiting for a compilation
 
 
 def console_main() -> None:  # pragma: no cover - exercised in subprocess tests
     """Entry point of the ``jaxcontact`` script (see the module docstring)."""
-    args = _parse(None)
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    command = sys.argv[1] if len(sys.argv) > 1 else "command"
+    try:
+        args = _parse(None)  # imports jax: an interruption here must not be lost either
+    except (KeyboardInterrupt, _Terminated) as err:
+        _interrupted(command, signal.SIGTERM if isinstance(err, _Terminated) else signal.SIGINT)
+    except BaseException:
+        # an extension module interrupted while it initialises raises ImportError
+        if _SIGNALLED:
+            _interrupted(command, _SIGNALLED[0])
+        raise
+    if _SIGNALLED:
+        _interrupted(command, _SIGNALLED[0])
+    _RAISE[0] = True  # from here the main thread only waits for the worker
     if isinstance(args, int):
         sys.exit(args)
     box: dict = {}
@@ -127,19 +156,18 @@ def console_main() -> None:  # pragma: no cover - exercised in subprocess tests
             box["err"] = err
 
     worker = threading.Thread(target=work, name="jaxcontact-command", daemon=True)
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         worker.start()
         while worker.is_alive():
             worker.join(0.1)
+            if _SIGNALLED:
+                _interrupted(args.command, _SIGNALLED[0])
     except (KeyboardInterrupt, _Terminated) as err:
-        run_cleanups()
-        code = 143 if isinstance(err, _Terminated) else 130
-        _log(f"jaxcontact {args.command}: interrupted; no output was written or changed")
-        sys.stdout.flush()
-        os._exit(code)  # do not wait for a compilation in the worker thread
+        _interrupted(args.command,
+                     signal.SIGTERM if isinstance(err, _Terminated) else signal.SIGINT)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if "err" in box:
         err = box["err"]
         if isinstance(err, SystemExit):

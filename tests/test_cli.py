@@ -375,6 +375,30 @@ def test_output_folder_replaced_whole(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
+def test_interrupt_during_imports_is_not_lost(tmp_path):
+    # SIGINT while jax is being imported (before the command runs): recorded, and the
+    # command stops with 130 after the imports; formerly a library swallowed it and the
+    # fit ran to the end (exit 0), or the interpreter crashed (exit 139)
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    files = _fit_csvs(tmp_path, speeds=(8e-6,), n=20)
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jaxcontact_cli", "fit", *files, "--radius", "1e-5",
+         "--model", "relaxed", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "JAXCONTACT_CACHE": str(tmp_path / "cache")})
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not out.exists()
+
+
 def test_interrupt_leaves_no_files(tmp_path):
     # SIGINT and SIGTERM during a real fit (compilation or optimisation): exit 130/143
     # promptly, no output folder, no hidden temporary folder

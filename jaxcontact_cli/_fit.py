@@ -238,35 +238,48 @@ def run(args) -> int:
         options["profile"] = profile
     if each:
         return _run_each(args, folder, curves, options)
-    try:
-        with warnings.catch_warnings():
-            # the fit's warnings are in result.warnings: printed in the summary and written
-            # to parameters.json
-            warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
-            warnings.simplefilter("ignore", fitting.ModelValidityWarning)
-            result = fitting.fit(curves, **options)
-    except ValueError as exc:
-        raise UsageError(" ".join(str(exc).split())) from None
-
-    staging = folder.stage()
-    try:
-        fitting.write_report(result, staging)
-        if not args.no_figure:
-            from ._plots import plot_fit
-
-            plot_fit(result, staging / "fit.png")
-        out = folder.commit()
-    finally:
-        folder.discard()
-    if not args.quiet:
-        print(result.summary())
-        print(f"written to {out}")
+    result, out = _fit_and_write(
+        args, folder, lambda: fitting.fit(curves, **options), write=fitting.write_report,
+        figure=("fit.png", "plot_fit"))
     if not result.converged:
         reason = "the optimiser stopped before convergence (max steps or no further decrease)"
         print(f"jaxcontact fit: error: the fit did not converge ({reason}); the report in "
               f"{out} is marked \"converged\": false", file=sys.stderr)
         return 1
     return 0
+
+
+def _fit_and_write(args, folder, fit, *, write, figure, check=None):
+    """Run `fit()` (its warnings go into the result, not to stderr; a `ValueError` is a
+    one-line usage error), `check(result)` (may raise `UsageError`), write the report
+    (`write(result, folder)`) and the figure (`figure`: file name and the name of the
+    plotting function in `_plots`) into a staging folder renamed into place, and print
+    the summary. Returns the result and the output folder."""
+    import fitting
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
+            warnings.simplefilter("ignore", fitting.ModelValidityWarning)
+            result = fit()
+    except ValueError as exc:
+        raise UsageError(" ".join(str(exc).split())) from None
+    if check is not None:
+        check(result)
+    staging = folder.stage()
+    try:
+        write(result, staging)
+        if not args.no_figure:
+            from . import _plots
+
+            getattr(_plots, figure[1])(result, staging / figure[0])
+        out = folder.commit()
+    finally:
+        folder.discard()
+    if not args.quiet:
+        print(result.summary())
+        print(f"written to {out}")
+    return result, out
 
 
 def _run_each(args, folder, curves, options) -> int:
@@ -278,29 +291,15 @@ def _run_each(args, folder, curves, options) -> int:
     if args.rheology == "auto":
         raise UsageError("argument --rheology: 'auto' is not offered with --each (a map "
                          "needs one model for all points); choose standard or prony:N")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", fitting.IdentifiabilityWarning)
-            warnings.simplefilter("ignore", fitting.ModelValidityWarning)
-            result = fitting.fit_each(curves, chunk=args.chunk, **options)
-    except ValueError as exc:
-        raise UsageError(" ".join(str(exc).split())) from None
-    if result.n_failed == len(curves):
-        raise UsageError("no curve could be fitted: " + "; ".join(
-            f"curve {i}: {e}" for i, e in enumerate(result.errors)))
-    staging = folder.stage()
-    try:
-        fitting.write_each_report(result, staging)
-        if not args.no_figure:
-            from ._plots import plot_map
 
-            plot_map(result, staging / "map.png")
-        out = folder.commit()
-    finally:
-        folder.discard()
-    if not args.quiet:
-        print(result.summary())
-        print(f"written to {out}")
+    def check(result):
+        if result.n_failed == len(curves):
+            raise UsageError("no curve could be fitted: " + "; ".join(
+                f"curve {i}: {e}" for i, e in enumerate(result.errors)))
+
+    result, out = _fit_and_write(
+        args, folder, lambda: fitting.fit_each(curves, chunk=args.chunk, **options),
+        write=fitting.write_each_report, figure=("map.png", "plot_map"), check=check)
     bad = len(curves) - result.n_converged
     if bad:
         print(f"jaxcontact fit: error: {result.n_failed} curve(s) failed and "

@@ -10,8 +10,10 @@ such), `fitting.fit` runs
 and the table reports R², R² in contact, χ² and the wall time of each, whether the default
 search reached the brute-force χ² (relative difference below 1e-6, or lower), and whether
 `prony:2` ended at least as good as `standard` (the issue's acceptance checks). The model
-is "history" for curves with a hold segment and "relaxed" otherwise (the retract after a
-relaxed start); the probe radius is `--radius` (files rarely store it; moduli scale with
+is `--model`: "history" by default (the whole approach-(hold-)retract, as `jaxcontact fit`
+fits an instrument file), "relaxed" (the retract after a relaxed start: a poor model for a
+curve without a hold), or "auto" (history for curves with a hold segment, relaxed
+otherwise); the probe radius is `--radius` (files rarely store it; moduli scale with
 it, the quality of the fit does not). The contact point is fitted (the default for
 instrument files).
 
@@ -64,6 +66,10 @@ def main(argv=None):
     ap.add_argument("--radius", type=float, default=10e-6, help="probe radius [m]")
     ap.add_argument("--max-samples", type=int, default=None)
     ap.add_argument("--out", default="benchmarks/results/real_fits.md")
+    ap.add_argument("--model", choices=("history", "relaxed", "auto"), default="history",
+                    help="history: the whole curve, as `jaxcontact fit` does by default; "
+                         "relaxed: the retract after a relaxed start; auto: history for "
+                         "curves with a hold segment, relaxed otherwise")
     ap.add_argument("--rheologies", default="standard,prony:2",
                     help="comma-separated rheologies to compare (default standard,prony:2)")
     ap.add_argument("--history-rheologies", default=None,
@@ -83,7 +89,9 @@ def main(argv=None):
                         f"{str(exc)[:120]} | | | | | | |")
             print(rows[-1], flush=True)
             continue
-        model = "history" if "hold" in curve.segment_names else "relaxed"
+        model = args.model
+        if model == "auto":
+            model = "history" if "hold" in curve.segment_names else "relaxed"
         chi2 = {}
         chosen = args.history_rheologies if model == "history" and args.history_rheologies \
             else args.rheologies

@@ -42,6 +42,8 @@ def load_afm(
     path,
     *,
     spring_constant: float | None = None,
+    sensitivity: float | None = None,
+    sample_rate: float | None = None,
     height_column: str | None = None,
     baseline: str | None = "constant",
     contact_point: str | None = "detect",
@@ -60,7 +62,11 @@ def load_afm(
       ``height (piezo)``; choose with ``height_column``. Base displacement toward the
       sample ``u = h[0] − h`` (AFM heights decrease toward the sample).
     * Time: the file's ``time`` column, else ``sample index / rate approach`` (Asylum
-      ``.ibw`` files carry no time column; their sample interval is 1/``NumPtsPerSec``).
+      ``.ibw`` files carry no time column; their sample interval is 1/``NumPtsPerSec``),
+      else ``sample index / sample_rate`` with the ``sample_rate`` [Hz] given (AFM
+      Workshop ``.csv`` files store neither time nor rate: the viscoelastic models need
+      it, so such a file without ``sample_rate`` is a `DataError` that says so). A
+      ``sample_rate`` given for a file with its own time base is an error.
     * Segments by modality: stress-relaxation → rest, approach, hold, retract;
       creep-compliance → approach, hold, retract; force-distance → approach, retract,
       and a single-segment force-distance curve is split after the force maximum. An
@@ -76,6 +82,11 @@ def load_afm(
     * Spring constant: the file's ``spring constant``. A ``spring_constant`` argument
       overrides it and rescales the force by ``k_arg / k_file`` (the instrument measured
       the deflection, ``F = k d``); it is only *required* when the file has none.
+    * Sensitivity: ``sensitivity`` [m/V], the deflection per photodetector volt, for
+      files that store the deflection in volts without it (AFM Workshop ``.csv`` with the
+      default light-lever gain); it is given to afmformats as metadata together with
+      ``spring_constant`` (both are needed: ``F = k s V``). A file that needs them and
+      lacks them is a `DataError` that says so.
     * Then :func:`preprocess` (``baseline``, ``contact_point`` and ``preprocess_kw``).
     * ``on_error``: ``"raise"`` (a curve that cannot be loaded or preprocessed is a
       `DataError` for the file) or ``"keep"`` (it is returned as a :class:`FailedCurve`
@@ -98,17 +109,30 @@ def load_afm(
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
+    meta_override = {}
+    if sensitivity is not None:
+        s = float(sensitivity)
+        if not (math.isfinite(s) and s > 0):
+            raise ValueError(f"sensitivity must be finite and > 0 [m/V], got {sensitivity}")
+        meta_override["sensitivity"] = s
+        if spring_constant is not None:
+            meta_override["spring constant"] = float(spring_constant)
     afm_log = logging.getLogger("afmformats")
     level = afm_log.level
     afm_log.setLevel(logging.CRITICAL)  # its failed-recogniser tracebacks are not errors
     try:
-        datasets = afmformats.load_data(path, modality=modality)
+        datasets = afmformats.load_data(path, modality=modality,
+                                        meta_override=meta_override or None)
     except (KeyboardInterrupt, SystemExit, GeneratorExit):
         raise
     except BaseException as exc:  # afmformats' errors derive from BaseException
+        hint = ""
+        if type(exc).__name__ == "MissingMetaDataError":
+            hint = ("; the file stores the deflection in volts: give spring_constant [N/m] "
+                    "and sensitivity [m/V] (command line: --spring-constant, --sensitivity)")
         raise DataError(
             f"{path}: afmformats cannot read it "
-            f"({type(exc).__name__}: {str(exc).replace(str(path), 'the file')})"
+            f"({type(exc).__name__}: {str(exc).replace(str(path), 'the file')}){hint}"
         ) from None
     finally:
         afm_log.setLevel(level)
@@ -119,7 +143,7 @@ def load_afm(
         try:
             curves.append(
                 _afm_curve(ds, path, spring_constant, height_column, baseline,
-                           contact_point, limits, preprocess_kw)
+                           contact_point, limits, preprocess_kw, sample_rate)
             )
         except ValueError as exc:
             if on_error == "keep":
@@ -138,7 +162,25 @@ def _plain_metadata(ds) -> dict:
         return {}
 
 
-def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, pkw):
+def _sample_time(meta, n: int, sample_rate) -> np.ndarray:
+    """Time [s] of the samples of a file without a time column."""
+    rate = meta.get("rate approach")
+    has_rate = rate is not None and math.isfinite(float(rate)) and float(rate) > 0
+    if sample_rate is not None:
+        if has_rate:
+            raise ValueError(f"sample_rate was given, but the file has its own sampling "
+                             f"rate ({float(rate):g} Hz)")
+        rate = float(sample_rate)
+        if not (math.isfinite(rate) and rate > 0):
+            raise ValueError(f"sample_rate must be finite and > 0 [Hz], got {sample_rate}")
+    elif not has_rate:
+        raise ValueError("the file has no time column and no sampling rate: give "
+                         "sample_rate [Hz] (command line: --sample-rate)")
+    return np.arange(n, dtype=np.float64) / float(rate)
+
+
+def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, pkw,
+               sample_rate=None):
     meta = dict(ds.metadata)
     cols = list(ds.columns)
     if height_column is None:
@@ -156,12 +198,11 @@ def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, 
     seg_raw = (np.asarray(ds["segment"], dtype=np.int64) if "segment" in cols
                else np.zeros(len(h), dtype=np.int64))
     if "time" in cols:
+        if sample_rate is not None:
+            raise ValueError("sample_rate was given, but the file has a time column")
         time = np.asarray(ds["time"], dtype=np.float64)
     else:
-        rate = meta.get("rate approach")
-        if not rate or not math.isfinite(float(rate)) or float(rate) <= 0:
-            raise ValueError("the file has no time column and no sampling rate")
-        time = np.arange(len(h), dtype=np.float64) / float(rate)
+        time = _sample_time(meta, len(h), sample_rate)
 
     k_file = meta.get("spring constant")
     k_file = float(k_file) if k_file is not None and math.isfinite(float(k_file)) else None

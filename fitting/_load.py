@@ -52,6 +52,7 @@ def _claimed_by_afmformats(path: pathlib.Path) -> bool:
 
 
 _TABLE_ONLY = ("columns", "units", "delimiter", "segment_names")
+_AFM_ONLY = ("sensitivity", "sample_rate")
 
 
 def _afm_options(path: pathlib.Path, kw: dict) -> dict:
@@ -79,7 +80,8 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
       as a :class:`FailedCurve` with its reason; see :func:`load_afm`). A table holds
       one curve; its errors are raised.
     - `**kw`: passed to the chosen reader (e.g. ``baseline``, ``contact_point``,
-      ``units``, ``spring_constant``).
+      ``units``, ``spring_constant``; ``sensitivity`` and ``sample_rate`` for instrument
+      files that lack them, see :func:`load_afm`).
 
     The choice for ``format=None``: a table suffix (``.csv``, ``.tsv``, ``.txt``,
     ``.dat``) goes to afmformats when one of its recognisers that inspects the content
@@ -118,8 +120,15 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
     if suffix in TABLE_SUFFIXES:
         if _claimed_by_afmformats(path):
             return load_afm(path, on_error=on_error, **_afm_options(path, kw))
+        table_kw = {k: v for k, v in kw.items() if k not in _AFM_ONLY}
         try:
-            return [load_csv(path, **kw)]
+            table = load_csv(path, **table_kw)
+            given = [k for k in _AFM_ONLY if kw.get(k) is not None]
+            if given:
+                raise ValueError(f"{path}: is read as a table (time, displacement and "
+                                 f"force columns); {', '.join(given)} apply to instrument "
+                                 "files only")
+            return [table]
         except DataError as table_error:
             if any("detect" not in r.recipe for r in _afm_recipes(path.suffix)):
                 try:

@@ -87,6 +87,13 @@ def add_fit_arguments(parser):
     parser.add_argument("--spring-constant", type=float, default=None, metavar="N_M",
                         help="cantilever stiffness [N/m]: compliant loading (history model); "
                              "overrides the spring constant of an instrument file")
+    parser.add_argument("--sensitivity", type=float, default=None, metavar="M_V",
+                        help="deflection sensitivity [m/V] for instrument files that store "
+                             "the deflection in volts without it (AFM Workshop .csv); needs "
+                             "--spring-constant")
+    parser.add_argument("--sample-rate", type=float, default=None, metavar="HZ",
+                        help="sampling rate [Hz] for instrument files without a time base "
+                             "(AFM Workshop .csv)")
     parser.add_argument("--cells", type=int, default=32, metavar="N",
                         help="foundation grid cells of the history model (default 32)")
     parser.add_argument("--units", default=None, metavar="ROLE=UNIT,...",
@@ -146,6 +153,9 @@ def load_inputs(args) -> tuple[list, bool]:
         options["baseline"] = args.baseline
     if args.contact_point == "none":
         options["contact_point"] = "none"
+    for name in ("sensitivity", "sample_rate"):
+        if getattr(args, name) is not None:
+            options[name] = getattr(args, name)
     curves, multi = [], False
     for f in args.files:
         p = pathlib.Path(f)
@@ -185,6 +195,10 @@ def _without_path(exc, p, f) -> str:
 def _check(args):
     profile, radius = parse_profile(args.profile, args.radius)
     check_number("--spring-constant", args.spring_constant, "N/m")
+    check_number("--sensitivity", args.sensitivity, "m/V")
+    check_number("--sample-rate", args.sample_rate, "Hz")
+    if args.sensitivity is not None and args.spring_constant is None:
+        raise UsageError("argument --sensitivity: needs --spring-constant (F = k s V)")
     if args.spring_constant is not None and args.model != "history":
         raise UsageError("argument --spring-constant: needs --model history")
     if args.starts is not None and args.starts < 1:

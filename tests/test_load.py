@@ -228,3 +228,53 @@ def test_ibw_dwell_from_the_wave_note(monkeypatch):
     (c,) = fitting.load_curve(ibw, contact_point="none", baseline="none")
     assert c.segment_names == ("approach", "hold", "retract")
     assert np.bincount(c.segment).tolist() == [1009, 492, 515]
+
+
+def _workshop_csv(path, volts_ext, volts_ret, z_ext, z_ret):
+    """An AFM Workshop force-distance export (deflection in volts, no time base)."""
+    head = ("Force-Distance Curve\nFile Format:\t3\n\nDate:\tWednesday, August 1, 2018\n"
+            "Time:\t1:06:09 PM\nMode:\tSingle\nPoint:\t1\nX, um:\t25.000000\n"
+            "Y, um:\t25.000000\n\n"
+            "Extend Z-Sense(nm),Extend T-B(V),Retract Z-Sense(nm),Retract T-B(V)\n")
+    rows = "".join(f"{a:.4f},{b:.6f},{c:.4f},{d:.6f}\n"
+                   for a, b, c, d in zip(z_ext, volts_ext, z_ret, volts_ret, strict=True))
+    path.write_text(head + rows)
+
+
+def test_workshop_volts_need_sensitivity_spring_constant_and_rate(tmp_path):
+    """An AFM Workshop .csv stores the deflection in volts and no time base: without the
+    sensitivity and spring constant it is refused naming both, without a rate naming
+    sample_rate; with them the force is k s V and the time index / rate."""
+    pytest.importorskip("afmformats")
+    n = 200
+    z_ext = np.linspace(1000.0, 2000.0, n)          # Z-sense [nm]; deeper = larger
+    z_ret = z_ext[::-1].copy()
+    pen = np.clip(z_ext - 1500.0, 0.0, None)       # [nm] past a contact at 1500 nm
+    v_ext = 1e-3 * pen**1.5                          # [V]
+    v_ret = v_ext[::-1] - 0.02 * np.exp(-((z_ret - 1480.0) / 20.0) ** 2)
+    path = tmp_path / "ws.csv"
+    _workshop_csv(path, v_ext, v_ret, z_ext, z_ret)
+    with pytest.raises(fitting.DataError, match=r"sensitivity \[m/V\]"):
+        fitting.load_curve(path, sample_rate=100.0)
+    with pytest.raises(fitting.DataError, match="sample_rate"):
+        fitting.load_curve(path, spring_constant=0.1, sensitivity=50e-9)
+    k, s, rate = 0.1, 50e-9, 100.0
+    c = fitting.load_curve(path, spring_constant=k, sensitivity=s, sample_rate=rate,
+                           baseline="none", contact_point="none")[0]
+    assert c.segment_names == ("approach", "retract")
+    written = np.round(np.concatenate([v_ext, v_ret]), 6)       # the file has 6 decimals
+    np.testing.assert_allclose(c.force, k * s * written,
+                               rtol=1e-5, atol=1e-15)
+    np.testing.assert_allclose(c.time, np.arange(2 * n) / rate)
+    with pytest.raises(ValueError, match="sensitivity must be finite and > 0"):
+        fitting.load_curve(path, spring_constant=k, sensitivity=-1.0, sample_rate=rate)
+
+
+def test_sample_rate_for_a_file_with_a_time_base_is_an_error(tmp_path):
+    pytest.importorskip("afmformats")
+    with pytest.raises(fitting.DataError, match="sample_rate was given"):
+        fitting.load_curve(DATA / "creep-compliance-polymergel.jpk-force", sample_rate=1e3)
+    table = tmp_path / "t.csv"
+    table.write_text("time_s,displacement_m,force_N\n0,0,0\n1,1e-6,1e-9\n2,0,0\n")
+    with pytest.raises(ValueError, match="apply to instrument files only"):
+        fitting.load_curve(table, sample_rate=1e3)

@@ -43,7 +43,7 @@ def ok_codes(codes):
     return (codes == R.detached._value) | (codes == R.in_contact._value)
 
 
-def name(item):
+def code_name(item):
     return next(k for k, v in R._name_to_item.items() if v._value == item._value)
 
 
@@ -297,7 +297,7 @@ def fuzz_bad_lanes(rng, repeats=4):
                 nan_ok += int(np.all(np.isnan(out[0][lane])) and np.isnan(out[2][lane]))
         row("retract, one bad lane in a vmap of 16 (throw=False)",
             f"{name} in {values}", tried,
-            f"code `{name(item)}` {right}/{tried}; other lanes unchanged {others}/{tried}; "
+            f"code `{code_name(item)}` {right}/{tried}; other lanes unchanged {others}/{tried}; "
             f"that lane NaN {nan_ok}/{tried}")
 
 

@@ -1,0 +1,10 @@
+"""Execute notebooks/05_sweeps_and_maps.ipynb (its asserts check the sweep's pull-off force
+against the closed form at every point, sweep points against direct `retract` calls,
+float32 against float64, the netCDF round trip, and a force-map curve fitted in the batch
+against the same curve fitted alone)."""
+
+from _notebook import run_notebook
+
+
+def test_notebook_05_sweeps_and_maps():
+    run_notebook("05_sweeps_and_maps.ipynb")

@@ -23,7 +23,10 @@ afmformats test files (`git show HEAD:tests/data/<name>` in a clone of
 github.com/AFM-analysis/afmformats), e.g. `fmt-jpk-fd_single-modified_2023.jpk-force`,
 `fmt-hdf5-fd_version_0.13.3.h5`.
 
-    python benchmarks/eval_real_fits.py FILE [FILE ...] [--brute 64] [--radius 10e-6]
+A file that lacks metadata takes loader options after an ``@``, e.g.
+``ws.csv@spring_constant=0.2,sensitivity=5e-8,sample_rate=1000`` (AFM Workshop).
+
+    python benchmarks/eval_real_fits.py FILE[@OPT=V,...] [FILE ...] [--brute 64] [--radius 10e-6]
         [--max-samples 300] [--out benchmarks/results/real_fits.md]
 
 Writes the table (with machine and date) to `--out` and prints it.
@@ -80,13 +83,16 @@ def main(argv=None):
     args.argv = list(sys.argv[1:] if argv is None else argv)
 
     rows = []
-    for path in args.files:
-        name = pathlib.Path(path).name
+    for item in args.files:
+        path, _, opts = item.partition("@")
+        name = pathlib.Path(path).name + (f" ({opts})" if opts else "")
         try:
-            curve = fitting.load_curve(path)[0]
+            load_kw = {k: float(v) for k, v in
+                       (o.split("=", 1) for o in opts.split(",") if o)}
+            curve = fitting.load_curve(path, **load_kw)[0]
         except Exception as exc:  # noqa: BLE001 - reported in the table
             rows.append(f"| {name} | - | not loaded: {type(exc).__name__}: "
-                        f"{str(exc)[:120]} | | | | | | |")
+                        f"{str(exc)[:200]} | | | | | | | |")
             print(rows[-1], flush=True)
             continue
         model = args.model
@@ -103,7 +109,7 @@ def main(argv=None):
                 except Exception as exc:  # noqa: BLE001 - reported in the table
                     out[label] = None
                     rows.append(f"| {name} | {model} {rheology} {label} | failed: "
-                                f"{type(exc).__name__}: {str(exc)[:120]} | | | | | | |")
+                                f"{type(exc).__name__}: {str(exc)[:200]} | | | | | | | |")
                     print(rows[-1], flush=True)
                     continue
                 out[label] = (res, dt)
@@ -115,11 +121,13 @@ def main(argv=None):
             nested = ""
             if rheology == "prony:2" and "standard" in chi2:
                 nested = "yes" if res.chi2 <= chi2["standard"] * (1 + 1e-6) else "**no**"
+            gap = (res.chi2 - bres.chi2) / bres.reduced_chi2
             rows.append(
                 f"| {name} | {model} {rheology} | {res.r_squared:.4f} / "
                 f"{res.r_squared_contact:.4f} | {bres.r_squared:.4f} / "
-                f"{bres.r_squared_contact:.4f} | {res.chi2:.6g} | {bres.chi2:.6g} | "
-                f"{'yes' if reached else '**no**'} | {nested} | {dt:.1f} / {bdt:.1f} |")
+                f"{bres.r_squared_contact:.4f} | {res.chi2:.9g} | {bres.chi2:.9g} | "
+                f"{gap:+.3g} | {'yes' if reached else '**no**'} | {nested} | "
+                f"{dt:.1f} / {bdt:.1f} |")
             print(rows[-1], flush=True)
 
     head = [
@@ -131,13 +139,16 @@ def main(argv=None):
         f"`python benchmarks/eval_real_fits.py {' '.join(args.argv)}`.",
         "",
         "R² over all fitted samples / over the samples in contact; χ² of the default and the "
-        "brute-force search; *reached*: the default search ends at the brute-force χ² or "
+        "brute-force search; Δχ²/χ²_red: their difference in units of the brute-force "
+        "reduced χ² (below 1: the two optima are statistically indistinguishable, the "
+        "difference in the log-likelihood under the fitted noise level is below 1/2); "
+        "*reached*: the default search ends at the brute-force χ² or "
         "lower; *prony:2 ≥ standard*: the nested fit is at least as good; times [s] of one "
         "fit each (compilation included: each fit compiles its own programs).",
         "",
         "| file | model | R² default (all / contact) | R² brute | χ² default | χ² brute | "
-        "reached | prony:2 ≥ standard | time default / brute [s] |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "Δχ²/χ²_red | reached | prony:2 ≥ standard | time default / brute [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     write_table(args.out, head + rows)
 

@@ -72,7 +72,7 @@ state at its start with the linear input), so the jump-off force, time and displ
 resolved finer than the sampling. The relaxed start, the samples and the bisection steps
 are the iterations of one `lax.scan`, so the solver is compiled once.
 
-**Accuracy** (`benchmarks/bench_bem.py`, results in `benchmarks/results_bem.md`). The cell
+**Accuracy** (`benchmarks/bench_bem.py`, results in `benchmarks/results/bem.md`). The cell
 criterion is a discrete energy balance, so the error is set by the number of cells across
 the contact at pull-off. For an elastic sphere the largest tensile force (displacement
 control) and the dead-load pull-off (force control) overshoot JKR's

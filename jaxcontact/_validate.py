@@ -271,38 +271,48 @@ PLAUSIBLE: dict[str, tuple[float, float, str]] = {
     "stiffness": (1e-6, 1e12, "N/m"),
 }
 
-_PLAUSIBILITY_GLOBAL = [True]  # a process-wide switch (the command line works in a thread)
+_PLAUSIBILITY_SESSION = [True]  # the session-wide setting (every thread reads it)
+_PLAUSIBILITY_BLOCK: contextvars.ContextVar[bool | None] = contextvars.ContextVar(
+    "jaxcontact_plausibility", default=None)  # a `with` block's setting (this context only)
 
 
 class plausibility_checks:  # noqa: N801 - used like a function
     """Switch the plausibility checks of units on or off.
 
-    `jaxcontact.plausibility_checks(False)` switches them off for the rest of the session;
-    `with jaxcontact.plausibility_checks(False): ...` only inside the block. The checks
-    compare every input of the entry functions (`retract`, `simulate`, `pull_off`, the
-    elastic relations) with `PLAUSIBLE` (lengths 1e-12–1 m, moduli 1e-3–1e13 Pa,
-    viscosities 1e-6–1e25 Pa s, times 1e-12–1e12 s, Δγ 1e-12–10 J/m², speeds
-    1e-15–1e3 m/s, spring stiffnesses 1e-6–1e12 N/m; zero never counts as implausible) and
-    report a value outside as an error (most likely a unit mistake: e.g. nanometres given
-    as metres). The setting is read when an entry function runs (or is traced under a
-    caller's `jit`: a compiled program keeps the setting it was traced with).
+    `jaxcontact.plausibility_checks(False)` switches them off for the rest of the session
+    (in every thread); `with jaxcontact.plausibility_checks(False): ...` only inside the
+    block, and only for the code running in it (a context variable: other threads, and
+    threads started inside the block, keep the session's setting). The checks compare
+    every input of the entry functions (`retract`, `simulate`, `pull_off`, the elastic
+    relations) with `PLAUSIBLE` (lengths 1e-12–1 m, moduli 1e-3–1e13 Pa, viscosities
+    1e-6–1e25 Pa s, times 1e-12–1e12 s, Δγ 1e-12–10 J/m², speeds 1e-15–1e3 m/s, spring
+    stiffnesses 1e-6–1e12 N/m; zero never counts as implausible) and report a value
+    outside as an error (most likely a unit mistake: e.g. nanometres given as metres).
+    The setting is read when an entry function runs (or is traced under a caller's
+    `jit`: a compiled program keeps the setting it was traced with).
     """
 
     def __init__(self, enabled: bool):
-        self._previous = _PLAUSIBILITY_GLOBAL[0]
-        _PLAUSIBILITY_GLOBAL[0] = bool(enabled)
+        self._enabled = bool(enabled)
+        self._previous = _PLAUSIBILITY_SESSION[0]
+        self._token = None
+        _PLAUSIBILITY_SESSION[0] = self._enabled
 
     def __enter__(self):
+        # a block: the session's setting stays as it was, the block's lives in the context
+        _PLAUSIBILITY_SESSION[0] = self._previous
+        self._token = _PLAUSIBILITY_BLOCK.set(self._enabled)
         return self
 
     def __exit__(self, *exc):
-        _PLAUSIBILITY_GLOBAL[0] = self._previous
+        _PLAUSIBILITY_BLOCK.reset(self._token)
         return False
 
 
 def plausibility_enabled() -> bool:
     """Whether the plausibility checks of units are on (see `plausibility_checks`)."""
-    return _PLAUSIBILITY_GLOBAL[0]
+    block = _PLAUSIBILITY_BLOCK.get()
+    return _PLAUSIBILITY_SESSION[0] if block is None else block
 
 
 def _plausible_message(name, kind) -> str:

@@ -152,7 +152,7 @@ def force_run():
 def test_adhesive_sphere_pulloff_converges_to_jkr(adhesive_runs):
     errs = {n: float(s.max_tensile_force) / F_FC - 1 for n, s in adhesive_runs.items()}
     # the largest tensile force overshoots JKR, first order in the cell size
-    # (benchmarks/results_bem.md: observed order 1.0 from 32 to 256 cells)
+    # (benchmarks/results/bem.md: observed order 1.0 from 32 to 256 cells)
     assert 0 < errs[32] < 0.16
     assert 0 < errs[64] < 0.09
     assert 0.4 < errs[64] / errs[32] < 0.6
@@ -189,7 +189,7 @@ def test_force_control_pulloff_against_jkr(force_run):
     s = force_run
     # the dead load detaches where no equilibrium carries it: JKR's -3/2 pi dgamma R, with
     # a first-order error in the cell size (+23 % here, 60 cells across the pull-off
-    # contact; the convergence table is in benchmarks/results_bem.md)
+    # contact; the convergence table is in benchmarks/results/bem.md)
     assert bool(s.detached)
     assert 0.15 < float(s.jumpoff_force) / F_FC - 1 < 0.3
     attached = np.asarray(s.contact_area) > 0
@@ -289,7 +289,7 @@ def test_relaxed_start_matches_retract(visco_runs):
         assert bool(s.detached)
         errs[n] = _errors(s, ref)
     # every error decreases with the cell size, about first order (more cells in
-    # benchmarks/results_bem.md); the discrete front detaches late and pulls harder
+    # benchmarks/results/bem.md); the discrete front detaches late and pulls harder
     (f32, t32, j32), (f64, t64, j64) = errs[32], errs[64]
     assert f32 < 0.1 and f64 < 0.7 * f32
     assert 0 < t64 < 0.7 * t32 < 0.1

@@ -297,3 +297,39 @@ def test_deprecated_stats_and_positional_signature():
     with pytest.warns(DeprecationWarning, match="details"):
         stats = by_pos.stats
     assert float(stats["initial_radius"]) == float(by_pos.details.initial_radius)
+
+
+def test_plausibility_block_is_local_to_its_context_and_the_session_switch_global():
+    """A `with plausibility_checks(False)` block in one thread leaves another thread's
+    checks on (a context variable); the session-wide call reaches every thread."""
+    import threading
+
+    from jaxcontact._validate import plausibility_enabled
+
+    seen = {}
+    inside, done = threading.Event(), threading.Event()
+
+    def other():
+        inside.wait(5)
+        seen["during block"] = plausibility_enabled()
+        done.set()
+
+    t = threading.Thread(target=other)
+    t.start()
+    with jc.plausibility_checks(False):
+        assert not plausibility_enabled()
+        inside.set()
+        done.wait(5)
+    t.join()
+    assert seen["during block"] is True
+    assert plausibility_enabled()
+    try:
+        jc.plausibility_checks(False)
+        box = []
+        t = threading.Thread(target=lambda: box.append(plausibility_enabled()))
+        t.start()
+        t.join()
+        assert box == [False] and not plausibility_enabled()
+    finally:
+        jc.plausibility_checks(True)
+    assert plausibility_enabled()

@@ -1,6 +1,6 @@
 """Benchmark of the boundary element method (`jc.bem_simulate`, `jc.bem_contact`).
 
-Prints markdown (the committed tables are in `benchmarks/results_bem.md`). Sections:
+Prints markdown (the committed tables are in `benchmarks/results/bem.md`). Sections:
 
 - `--timing`: a complete adhesive pull-off of an elastic sphere (paraboloid) in
   displacement control, 20 approach steps to 1.5x the JKR pull-off radius and 80 lift

@@ -50,7 +50,7 @@ from ._optimise import (
 from ._prepare import stack_batches
 from ._result import FitResult
 from ._spec import parameter_info, rheology_name
-from ._start import local_starts
+from ._start import LocalRounds, local_starts
 
 __all__ = ["fit_each", "FitEachResult"]
 
@@ -312,14 +312,19 @@ def fit_each(
                          rtol=float(rtol), max_steps=int(max_steps), optimiser=optimiser,
                          devices=devices)
             outs = _run_chunk([problems[i].zs for i in fill], **solve)
-            for k in range(opts["local_rounds"]):  # as in `fit`, every curve of the chunk
+            rounds = [LocalRounds() for _ in fill]
+            for k in range(opts["local_rounds"]):  # as in `fit`, for each curve
+                if all(r.done for r in rounds):
+                    break
                 before = [_best_loss(o[1]) for o in outs]
                 new = _run_chunk([local_starts(problems[i].param, o[0], o[1], n_z,
-                                               seed=seed + 1 + k)
-                                  for i, o in zip(fill, outs, strict=True)], **solve)
-                outs = [_merge(o, n_) for o, n_ in zip(outs, new, strict=True)]
-                if not any(_improved(o[1], b) for o, b in zip(outs, before, strict=True)):
-                    break
+                                               seed=seed + 1 + k, widen=r.widen)
+                                  for i, o, r in zip(fill, outs, rounds, strict=True)],
+                                 **solve)
+                for j, r in enumerate(rounds):  # a curve whose rounds are done keeps its
+                    if not r.done:              # end points (the same as fit alone)
+                        outs[j] = _merge(outs[j], new[j])
+                        r.update(_improved(outs[j][1], before[j]))
             timings["optimise"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             for j, i in enumerate(part):

@@ -11,8 +11,9 @@ How :func:`fit` finds the optimum
    as a pool of lanes (:func:`fitting._least_squares.run_pool`: a lane whose start has
    converged takes the next one). Then up to `local_rounds` rounds of as many starts
    around the best end points (:func:`fitting._start.local_starts`: the best continued,
-   pattern moves along the line of the best optima, a small Latin hypercube), the same
-   compiled call, until a round no longer lowers $\chi^2$. The smallest $\chi^2$ wins;
+   pattern moves along the line of the best optima, a small Latin hypercube, widened
+   after a round without progress), the same compiled call, until the widest round no
+   longer lowers $\chi^2$. The smallest $\chi^2$ wins;
    the pool also returns the Jacobian of every end point, so the best one's is reused
    for the uncertainty.
 3. **Uncertainty** (:func:`fitting._uncertainty.gauss_newton`), statistics ($R^2$ over all
@@ -70,6 +71,7 @@ from ._spec import (
     rheology_name,
 )
 from ._start import (
+    LocalRounds,
     data_scales,
     default_bounds,
     initial_guess,
@@ -344,8 +346,9 @@ def fit(
       "lbfgs" (optax L-BFGS). `rtol`:
       convergence tolerance. `seed`: of the Latin hypercube.
     - `local_rounds`: at most this many further rounds of as many starts around the best
-      end points (:func:`fitting._start.local_starts`; they reuse the compiled search and
-      stop when a round does not lower $\chi^2$), default
+      end points (:func:`fitting._start.local_starts`; they reuse the compiled search, a
+      round without progress is followed by a wider one, and they stop when the widest
+      does not lower $\chi^2$), default
       :data:`DEFAULT_LOCAL_ROUNDS`; 0: the global search alone.
 
     **Returns:** a :class:`FitResult` (print it for a summary). Parameters the data do not
@@ -460,12 +463,15 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
                                       min(8, len(zs))))
 
     out = run(pb.zs)
+    rounds = LocalRounds()
     for k in range(opts["local_rounds"]):
         best = _best_loss(out[1])
         out = _merge(out, run(local_starts(pb.param, out[0], out[1], len(pb.zs),
-                                           seed=opts["seed"] + 1 + k)))
-        show(f"local round {k + 1}: chi2 {best:.8g} -> {_best_loss(out[1]):.8g}")
-        if not _improved(out[1], best):
+                                           seed=opts["seed"] + 1 + k, widen=rounds.widen)))
+        show(f"local round {k + 1} (width x{rounds.widen:g}): chi2 {best:.8g} -> "
+             f"{_best_loss(out[1]):.8g}")
+        rounds.update(_improved(out[1], best))
+        if rounds.done:
             break
     timings["optimise"] = time.perf_counter() - t0
     return _finish(pb, curves, opts["profile"], out, opts["optimiser"], show=show,

@@ -129,6 +129,42 @@ def test_local_starts_continue_step_along_the_ladder_and_stay_inside(noisy_fit):
     assert local_starts(param, z_end[:1], chi2[:1], 5).shape == (5, k)
 
 
+def test_widened_rounds_leave_out_pattern_moves_and_stay_in_the_wider_box(noisy_fit):
+    # a round after one without progress: the best end point, then only hypercube points
+    # within `widen` times the first round's half-widths (internal coordinates), inside
+    # the bounds; the schedule widens twice, then stops; progress keeps the width
+    from fitting._start import (LOCAL_LINEAR_WIDTH, LOCAL_LOG_WIDTH, LOCAL_MAX_WIDEN,
+                                LOCAL_WIDEN, PATTERN_STEPS, LocalRounds, local_starts)
+
+    param = noisy_fit.parameterisation
+    free = list(param.free)
+    best = np.asarray(param.z_of(param.to_internal(noisy_fit.values)))
+    z_end = np.stack([best, best + 0.3])
+    chi2 = np.array([1.0, 2.0])
+    half = np.where(np.asarray(param.log)[free], LOCAL_LOG_WIDTH, LOCAL_LINEAR_WIDTH)
+    u_best = np.asarray(param.internal(best))[free]
+    for widen in (1.0, LOCAL_WIDEN, LOCAL_MAX_WIDEN):
+        zs = local_starts(param, z_end, chi2, 12, seed=1, widen=widen)
+        np.testing.assert_array_equal(zs[0], best)
+        box = zs[1:] if widen > 1.0 else zs[1 + len(PATTERN_STEPS):]
+        u = np.stack([np.asarray(param.internal(z))[free] for z in box])
+        dist = np.abs(u - u_best) / half
+        assert np.all(dist <= widen * (1 + 1e-9))
+        if widen > 1.0:  # no pattern move (they lie on the line through z_end[1])
+            assert np.all(dist.max(axis=0) > 0.3 * widen)  # the box is used, not a line
+        else:
+            np.testing.assert_allclose(zs[1], best + 0.5 * (best - z_end[1]))
+    r = LocalRounds()
+    r.update(True)
+    assert (r.widen, r.done) == (1.0, False)
+    r.update(False)
+    assert (r.widen, r.done) == (LOCAL_WIDEN, False)
+    r.update(False)
+    assert (r.widen, r.done) == (LOCAL_MAX_WIDEN, False)
+    r.update(False)
+    assert r.done
+
+
 def test_recovery_noisy_within_standard_errors(noisy_fit):
     res = noisy_fit
     assert max(_errors(res).values()) < 0.05

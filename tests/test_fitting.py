@@ -133,8 +133,15 @@ def test_widened_rounds_leave_out_pattern_moves_and_stay_in_the_wider_box(noisy_
     # a round after one without progress: the best end point, then only hypercube points
     # within `widen` times the first round's half-widths (internal coordinates), inside
     # the bounds; the schedule widens twice, then stops; progress keeps the width
-    from fitting._start import (LOCAL_LINEAR_WIDTH, LOCAL_LOG_WIDTH, LOCAL_MAX_WIDEN,
-                                LOCAL_WIDEN, PATTERN_STEPS, LocalRounds, local_starts)
+    from fitting._start import (
+        LOCAL_LINEAR_WIDTH,
+        LOCAL_LOG_WIDTH,
+        LOCAL_MAX_WIDEN,
+        LOCAL_WIDEN,
+        PATTERN_STEPS,
+        LocalRounds,
+        local_starts,
+    )
 
     param = noisy_fit.parameterisation
     free = list(param.free)

@@ -1,7 +1,7 @@
 """Execute notebooks/05_sweeps_and_maps.ipynb (its asserts check the sweep's pull-off force
 against the closed form at every point, sweep points against direct `retract` calls,
-float32 against float64, the netCDF round trip, and a force-map curve fitted in the batch
-against the same curve fitted alone)."""
+float32 against float64, the netCDF round trip, and a force map fitted curve by curve
+with every curve converged)."""
 
 from _notebook import run_notebook
 

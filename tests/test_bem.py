@@ -152,7 +152,7 @@ def force_run():
 def test_adhesive_sphere_pulloff_converges_to_jkr(adhesive_runs):
     errs = {n: float(s.max_tensile_force) / F_FC - 1 for n, s in adhesive_runs.items()}
     # the largest tensile force overshoots JKR, first order in the cell size
-    # (benchmarks/results/bem.md: observed order 1.0 from 32 to 256 cells)
+    # (benchmarks/results/bem.md: order 1.0–1.3 from 32 to 128 cells)
     assert 0 < errs[32] < 0.16
     assert 0 < errs[64] < 0.09
     assert 0.4 < errs[64] / errs[32] < 0.6

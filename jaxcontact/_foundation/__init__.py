@@ -66,7 +66,7 @@ stiff spring, force control's minimum of $F$ for $k \to 0$). Exact for an elasti
 at any $k$ and any sampling; for a viscoelastic one the jump-off converges at first order
 in the sample spacing (the indentation accelerates towards the instability, while a step
 takes it linear in time; measured by `benchmarks/bench_foundation.py`, results in
-`benchmarks/results-forward.md`).
+`benchmarks/results/forward.md`).
 
 **Discretisation.** Springs sit at nodes $x_j$ uniform in the touch depth: $g(x_j) = j\,
 g_\max/n$ (for the parabola $x_j \propto \sqrt j$, densest at the edge): springs of one cell
@@ -84,7 +84,7 @@ different histories, second order in the cell size, and the timing of springs th
 state inside a step (located by linear interpolation in time; exact for virgin springs).
 The error against the number of cells, and the estimate of `estimate_error=True` (which
 overestimates it), are measured by `benchmarks/bench_foundation.py` (results in
-`benchmarks/results-forward.md`).
+`benchmarks/results/forward.md`).
 
 **Time integration.** `ExactUpdate()` (default) uses the closed-form updates above for the
 piecewise-linear input: no time-step error. `DiffraxODE(...)` integrates the dashpot ODEs of

@@ -27,7 +27,7 @@ class FoundationGrid(eqx.Module):
       force is second order, $\propto n^{-2}$, over approach and hold (less regular on the
       lift, where springs are released between nodes); its table for an approach-hold-lift
       history against a 1,024-cell reference is measured by `benchmarks/bench_foundation.py`
-      (results in `benchmarks/results-forward.md`). The elastic solid and a lift from a
+      (results in `benchmarks/results/forward.md`). The elastic solid and a lift from a
       fully relaxed state are exact on any grid. `simulate(..., estimate_error=True)`
       estimates the error for a given history.
     - `depth`: largest indentation $g_\max$ [m] the grid covers. Default, times $(1 + 1/n)$:

@@ -8,7 +8,7 @@ import sys
 __all__ = ["XLA_CPU_FLAGS", "tune_xla_cpu"]
 
 
-#: XLA options for the CPU that the command line applies (see `tune_xla_cpu`).
+#: XLA options for the CPU that ``jaxcontact fit`` applies (see `tune_xla_cpu`).
 XLA_CPU_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
 
 
@@ -23,8 +23,11 @@ def tune_xla_cpu() -> list[str]:
     passes either way). Applied only where it is known to exist (jaxlib 0.10: an unknown
     flag makes XLA abort), only before the backend has started, never over a choice made in
     ``XLA_FLAGS`` already, and not at all with ``JAXCONTACT_XLA_TUNING=0``. Returns the
-    flags added. The command line (``jaxcontact``) and ``benchmarks/bench_fit.py`` call this
-    first; library users may call it at the top of a script, before any JAX computation.
+    flags added. ``jaxcontact fit`` and ``benchmarks/bench_fit.py`` call this first; library
+    users who fit may call it at the top of a script, before any JAX computation. Not for
+    forward runs: the same code generator makes them slower (a full-history sweep 1.5x in
+    float64, the relaxed-start `retract` 5-8x in float32; jaxlib 0.10.2, 2-core CPU), so the
+    other commands of the command line keep XLA's default.
     """
     if os.environ.get("JAXCONTACT_XLA_TUNING", "1") == "0":
         return []

@@ -81,15 +81,23 @@ def _one_line(err: BaseException) -> str:
     return text if len(text) <= 600 else text[:597] + "..."
 
 
+#: Commands that run with `fitting.XLA_CPU_FLAGS`: the older CPU code generator makes the
+#: fitting Jacobian faster, but the forward models slower (measured with jaxlib 0.10.2 on a
+#: 2-core CPU: a full-history sweep 1.5x slower in float64, 1.4-1.7x in float32; `retract`
+#: 5-8x slower in float32), so `simulate`, `sweep` and `demo` keep XLA's default.
+TUNED_COMMANDS = frozenset({"fit"})
+
+
 def _parse(argv) -> argparse.Namespace | int:
     from fitting import tune_xla_cpu
 
-    tune_xla_cpu()
-    parser = build_parser()
+    parser = build_parser()  # imports jax without starting its backend
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
+    if args.command in TUNED_COMMANDS:
+        tune_xla_cpu()
     return args
 
 

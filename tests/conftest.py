@@ -1,7 +1,7 @@
 import os
 
 # Compilation dominates the suite's time (each test compiles its own programs), so the
-# suite runs XLA's CPU backend as the command line does (`fitting.XLA_CPU_FLAGS`, added by
+# suite runs XLA's CPU backend as `jaxcontact fit` does (`fitting.XLA_CPU_FLAGS`, added by
 # `fitting.tune_xla_cpu` below: the code generator the main job uses) and without LLVM's
 # optimisation passes (`--xla_backend_optimization_level=0`). Neither changes IEEE
 # arithmetic (no fast math); together they cut the suite's CPU time by about a third

@@ -254,6 +254,38 @@ def test_tune_xla_cpu():
     assert f_tuned == pytest.approx(f_default, rel=1e-12)
 
 
+def test_only_fit_gets_the_xla_tuning():
+    # the fitting code generator slows the forward models down: `simulate`, `sweep` and
+    # `demo` must start JAX with XLA's defaults, `fit` with `fitting.XLA_CPU_FLAGS`
+    import subprocess
+    import sys
+
+    import jaxlib
+
+    from fitting import XLA_CPU_FLAGS
+
+    code = (
+        "import os, sys\n"
+        "from jaxcontact_cli._main import _parse\n"
+        "args = _parse(sys.argv[1:])\n"
+        "print(args.command, repr(os.environ.get('XLA_FLAGS', '')))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS",
+                                                            "JAXCONTACT_XLA_TUNING")}
+    forward = ["--G0", "1e4", "--G1", "5e3", "--eta1", "7.5e3", "--work-of-adhesion", "5e-3",
+               "--depth", "1e-6", "--velocity", "1e-6", "--out", "x.csv"]
+    cases = {"demo": ["demo"], "simulate": ["simulate", *forward, "--duration", "1"],
+             "sweep": ["sweep", *forward, "--radius", "1e-5"], "fit": ["fit", "x.csv", "--out", "o"]}
+    known = tuple(int(x) for x in jaxlib.__version__.split(".")[:2]) == (0, 10)
+    for name, argv in cases.items():
+        out = subprocess.run([sys.executable, "-c", code, *argv], env=env,
+                             capture_output=True, text=True, check=True).stdout.split()
+        assert out[0] == name
+        flags = eval(out[1])  # noqa: S307 - our own repr
+        expected = " ".join(XLA_CPU_FLAGS) if (name == "fit" and known) else ""
+        assert flags == expected, (name, flags)
+
+
 # --------------------------------------------------------------------------------------
 # fit and the output policy of every command
 # --------------------------------------------------------------------------------------

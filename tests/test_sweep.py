@@ -151,6 +151,30 @@ def test_points_and_list_of_sets_match_grid(relaxed):
                                rtol=1e-12)
 
 
+@pytest.mark.parametrize("model", [jc.RelaxedStart(samples=500),
+                                   jc.ApproachHoldLift(samples=200, cells=16)])
+def test_default_cpu_chunk_fits_the_models_budget(model):
+    # the default chunk on a CPU device follows the model's `cpu_chunk_budget` through an
+    # upper estimate of the bytes per curve: XLA's own account of the compiled chunk
+    # (arguments + outputs + temporaries) must stay within the budget, and not be far below
+    import jax
+
+    from jaxcontact._sweep._parameters import _ProfileFamily, _StandardFamily
+    from jaxcontact._sweep._run import _compiled, chunk_size_for
+
+    devices = tuple(jax.devices()[:1])
+    chunk = chunk_size_for(model, 1, 8, False, 10**7, 1, devices=devices)
+    names = tuple(sorted(["G0", "G1", "eta1", "work_of_adhesion", "velocity", "R", "depth",
+                          *(["hold", "approach_velocity"] if model.name == "history" else [])]))
+    fn, sharding = _compiled(model, _StandardFamily(), _ProfileFamily("R"), names, False,
+                             devices, "float64")
+    cols = {n: jax.ShapeDtypeStruct((chunk,), np.float64, sharding=sharding) for n in names}
+    mem = fn.lower(cols).compile().memory_analysis()
+    used = mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes
+    assert used <= model.cpu_chunk_budget
+    assert used >= 0.2 * model.cpu_chunk_budget
+
+
 def test_chunks_give_the_same_result(relaxed):
     # 40 points in chunks of 16: three chunks, the last one padded
     flat = relaxed.stack(point=("G1", "depth", "velocity"))

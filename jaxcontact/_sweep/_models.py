@@ -160,6 +160,10 @@ class AbstractSweepModel(eqx.Module):
     duration_factor: float = eqx.field(static=True, default=1.5)
 
     name: ClassVar[str] = ""
+    #: Default bytes of one chunk per CPU device (`sweep`'s `memory_limit` where the backend
+    #: reports no memory limit): the fastest of 8, 32, 128, 512 MiB measured for the model
+    #: (`benchmarks/results/sweep.md`).
+    cpu_chunk_budget: ClassVar[int] = 512 * 2**20
     required: ClassVar[tuple] = ("work_of_adhesion", "depth", "velocity")
     # name -> default: None (absent unless given), a number, or the name of another parameter
     optional: ClassVar[dict] = {}
@@ -229,6 +233,8 @@ class RelaxedStart(AbstractSweepModel):
     """
 
     name: ClassVar[str] = "relaxed"
+    # chunks near the CPU's caches: 1.6-2x faster than 512 MiB (benchmarks/results/sweep.md)
+    cpu_chunk_budget: ClassVar[int] = 32 * 2**20
 
     def solve(self, rheology, profile, p, *, curves=False):
         dgamma = p["work_of_adhesion"]

@@ -17,7 +17,9 @@ same arguments (SPMD, as any multi-process JAX program).
 **Memory.** A chunk holds `chunk_size` curves (a multiple of the number of devices; the
 last chunk is padded with copies of a valid point whose results are dropped). By default
 the size follows from a budget per device (`memory_limit`, default: half of the device's
-memory limit where the backend reports one (GPUs), else 512 MiB) divided by an upper
+memory limit where the backend reports one (GPUs), else the model's `cpu_chunk_budget`:
+32 MiB for `RelaxedStart`, whose chunks then stay near the CPU's caches, 512 MiB for
+`ApproachHoldLift`, which does much more work per byte) divided by an upper
 estimate of the bytes one curve needs (samples x live floats per sample of the model), and
 no larger than the points need (rounded up to 1/8 of an octave per device, so that sweeps of
 similar sizes share one compiled program).
@@ -39,7 +41,6 @@ from ._models import PointResult
 
 __all__ = ["run_points", "default_precision", "chunk_size_for"]
 
-_CPU_BUDGET = 512 * 2**20
 _MAX_CHUNK = 2**17
 
 
@@ -48,7 +49,7 @@ def default_precision() -> str:
     return "float64" if jax.default_backend() == "cpu" else "float32"
 
 
-def _device_budget(devices) -> int:
+def _device_budget(devices, model) -> int:
     stats = None
     try:
         stats = devices[0].memory_stats()
@@ -56,7 +57,7 @@ def _device_budget(devices) -> int:
         stats = None
     if stats and stats.get("bytes_limit"):
         return int(stats["bytes_limit"]) // 2
-    return _CPU_BUDGET
+    return int(model.cpu_chunk_budget)
 
 
 def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_limit=None,
@@ -65,14 +66,16 @@ def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_li
     a multiple of `n_devices`."""
     per_sample = model.floats_per_curve(arms) + (4 if curves else 0)
     per_curve = int(model.samples) * per_sample * itemsize + 4096
-    budget = memory_limit if memory_limit is not None else _device_budget(devices)
+    budget = memory_limit if memory_limit is not None else _device_budget(devices, model)
     per_device = max(1, min(int(budget) // per_curve, _MAX_CHUNK))
-    # no larger than the points need, rounded up to 1/8 of an octave (at most 12.5 % padding;
-    # sweeps of similar sizes share one compiled program)
+    # the points in as few chunks as the budget allows, of equal size (1,000 points under a
+    # budget of 760 run as two chunks of 500, not 760 + 240 padded to 760), rounded up to
+    # 1/8 of an octave (at most 12.5 % padding; sweeps of similar sizes share one program)
     need = math.ceil(n_points / n_devices)
-    step = 1 << max(0, (need - 1).bit_length() - 3)
-    need = step * math.ceil(need / step)
-    return n_devices * max(1, min(per_device, need))
+    size = math.ceil(need / math.ceil(need / per_device))
+    step = 1 << max(0, (size - 1).bit_length() - 3)
+    size = step * math.ceil(size / step)
+    return n_devices * max(1, size)
 
 
 @lru_cache(maxsize=32)

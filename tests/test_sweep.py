@@ -344,3 +344,11 @@ def test_bad_options():
         jc.sweep(STD, precision="float16", progress=False)
     with pytest.raises(TypeError, match="model"):
         jc.sweep(STD, model="relaxed", progress=False)
+
+    # a protocol without `solve` is refused when it is built, not when a sweep runs it
+    class Incomplete(jc.AbstractSweepModel):
+        def floats_per_curve(self, arms):
+            return 8
+
+    with pytest.raises(TypeError, match="abstract"):
+        Incomplete()

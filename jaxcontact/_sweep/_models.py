@@ -41,6 +41,7 @@ measure it against the elastic JKR closed form.
 
 from __future__ import annotations
 
+import abc
 from typing import ClassVar
 
 import equinox as eqx
@@ -178,15 +179,15 @@ class AbstractSweepModel(eqx.Module):
             raise ValueError(f"`duration_factor` must be a finite number > 1 (the lift lasts "
                              f"that many times the bound of the jump-off time); got {factor}.")
 
+    @abc.abstractmethod
     def solve(self, rheology, profile, p, *, curves: bool = False) -> PointResult:
         """One point in scaled units; `p` maps parameter names to scalars; with `curves`
         the result also holds the sampled curve."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def floats_per_curve(self, arms: int) -> int:
         """Live floats per sample of one curve (without the curves' outputs), an upper
         estimate for sizing chunks."""
-        raise NotImplementedError
 
 
 def _valid(ratio, tau, h_crit, T_b, p):

@@ -53,10 +53,11 @@ a held-out JPK force-distance curve the next rung lay 0.27 away in $\log\Delta\g
 outside the first box.
 
 Nested models (:func:`nested_starts`): ``prony:N`` starts from the ``prony:N-1`` (or
-standard-model) optimum with one arm added, of modulus $10^{-3}G_\infty$ at each of several
-relaxation times (between and beyond the existing ones), and again with the arm just inside
-the lower bound of the moduli, whose loss is the simpler model's optimum to a relative
-~1e-5: a descent from there ends at most that much above the simpler fit.
+standard-model) optimum with one arm added: as each existing arm split in two equal arms
+at its own relaxation time (the same relaxation function, so the same loss: a descent from
+there never ends above the simpler fit), and as an arm of modulus $10^{-3}G_\infty$, or
+just inside the lower bound of the moduli, at each of several relaxation times (between and
+beyond the existing ones), from which a second relaxation time can grow.
 """
 
 from __future__ import annotations
@@ -365,15 +366,20 @@ def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
     cands += [0.5 * (lo + logt[0]), 0.5 * (logt[-1] + hi)]
     cands += [logt[0] - math.log(10.0), logt[-1] + math.log(10.0)]
     cands = [c for c in cands if lo < c < hi]
-    out = []
+    # the simpler model exactly: one arm split into `add + 1` equal arms at its own time
+    # (the same relaxation function), so the richer fit starts at the simpler optimum and,
+    # the optimiser only descending, never ends above it
+    arms = [(list(gs[:j]) + [gs[j] / (add + 1)] * (add + 1) + list(gs[j + 1:]),
+             list(taus[:j]) + [taus[j]] * (add + 1) + list(taus[j + 1:]))
+            for j in range(len(gs))]
     # each candidate time twice: an arm of 1e-3 G_inf (explores), and one just inside the
-    # lower bound of the moduli (2e-6 of the Hertz estimate; `default_bounds`), whose model
-    # is the simpler one to about that relative amount, so the richer fit starts (and, the
-    # optimiser only descending, ends) at most that much above the simpler optimum
-    for c, g_add in [(c, g) for c in cands for g in (1e-3 * g_inf, 2e-6 * s.g_relaxed)]:
-        new_t = list(taus) + [math.exp(c)] * add
-        new_g = list(gs) + [g_add] * add
-        order = np.argsort(new_t)
+    # lower bound of the moduli (2e-6 of the Hertz estimate; `default_bounds`), the simpler
+    # model to about that relative amount, from which a second arm can grow
+    arms += [(list(gs) + [g_add] * add, list(taus) + [math.exp(c)] * add)
+             for c in cands for g_add in (1e-3 * g_inf, 2e-6 * s.g_relaxed)]
+    out = []
+    for new_g, new_t in arms:
+        order = np.argsort(new_t, kind="stable")
         q = {"G_inf": g_inf, "work_of_adhesion": work}
         for k, j in enumerate(order):
             q[f"G_{k + 1}"] = float(new_g[j])

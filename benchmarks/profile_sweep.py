@@ -15,12 +15,11 @@ Prints markdown rows (results in `benchmarks/results/sweep.md`).
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from bench_foundation import timed  # median of warm calls (benchmarks/bench_foundation.py)
 
 import jaxcontact as jc
 from jaxcontact._pulloff import retract
@@ -30,20 +29,11 @@ jax.config.update("jax_enable_x64", True)
 PROFILE = jc.Parabola(R=1.0)
 
 
-def _median_time(f, args, repeats=20):
-    jax.block_until_ready(f(*args))
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
-
-
 def stages(samples):
     def bound(g0, g1, eta, dg):
-        ratio, tau, h, _ = M._front_constants(jc.StandardModel(g0, g1, eta), PROFILE, dg)
-        return M._lift_bound(ratio, tau, h, jnp.inf), ratio, tau, h
+        """The bound of the jump-off time and the touch radius."""
+        ratio, tau, h, a0 = M._front_constants(jc.StandardModel(g0, g1, eta), PROFILE, dg)
+        return M._lift_bound(ratio, tau, h, jnp.inf), a0
 
     def shared(g0, g1, eta, dg):
         ts = jnp.linspace(0.0, 0.5, samples)
@@ -51,8 +41,7 @@ def stages(samples):
                        velocity=1.0, ts=ts, throw=False)
 
     def per_curve(g0, g1, eta, dg):
-        T, _, _, _ = bound(g0, g1, eta, dg)
-        a0 = M._front_constants(jc.StandardModel(g0, g1, eta), PROFILE, dg)[3]
+        T, a0 = bound(g0, g1, eta, dg)
         ts = jnp.linspace(0.0, 1.0, samples) * 1.5 * T
         return retract(jc.StandardModel(g0, g1, eta), PROFILE, work_of_adhesion=dg,
                        depth=1.0, velocity=1.0, ts=ts, contact_radius=a0, throw=False)
@@ -100,7 +89,7 @@ def main():
     print("| --- | --- | --- |")
     for name, f in stages(k):
         with jc.plausibility_checks(False):
-            t = _median_time(jax.jit(jax.vmap(f)), args_)
+            t = timed(jax.jit(jax.vmap(f)), *args_, repeats=20)[0]
         print(f"| {name} | {t * 1e3:.2f} | {n * k / t:.3g} |", flush=True)
 
 

@@ -16,7 +16,9 @@ $\partial x/\partial\theta = -(\partial f/\partial x)^{-1}\,\partial f/\partial\
 gradients are exact for the converged root and cost one extra evaluation of $f$.
 
 **Stopping.** With $\varepsilon$ the machine epsilon of the bracket's dtype, a lane stops when
-$f(x) = 0$; when a Newton step is below $4\varepsilon|x|$; when the bracket is narrower than
+$f(x) = 0$; when the Newton correction $|f/f'|$ is below $4\varepsilon|x|$ (also where the
+corrected point would land on the bracket end: Newton converging from one side moves only
+that end); when the bracket is narrower than
 $4\varepsilon\max(|x_\mathrm{lo}|, |x_\mathrm{hi}|)$; or when Newton has reached the
 round-off floor of $f$: a step below $10^{-9}$ of the initial bracket that is not smaller
 than 0.9 of the previous Newton step (quadratic convergence has ended; near a double root,
@@ -63,16 +65,23 @@ def _solve(fn, lo, hi, steps, dtype):
         same_as_lo = jnp.sign(fx) == sign_lo
         lo_n = jnp.where(same_as_lo, x, lo)
         hi_n = jnp.where(same_as_lo, hi, x)
-        newton = x - fx / jnp.where(dfx == 0, 1.0, dfx)
+        correction = fx / jnp.where(dfx == 0, 1.0, dfx)
+        newton = x - correction
         inside = (dfx != 0) & jnp.isfinite(newton)
         inside = inside & (newton > jnp.minimum(lo_n, hi_n)) & (newton < jnp.maximum(lo_n, hi_n))
+        # a Newton correction below round-off: converged. (Without this test, Newton that
+        # converges from one side lands on the bracket end it has just moved, which is not
+        # strictly inside, and the loop bisected away from the root for ~40 more steps.)
+        resolved = (dfx != 0) & jnp.isfinite(correction) & (
+            jnp.abs(correction) <= eps4 * jnp.abs(x))
         x_new = jnp.where(inside, newton, 0.5 * (lo_n + hi_n))
         step = jnp.abs(x_new - x)
         zero = fx == 0
-        x_new = jnp.where(zero, x, x_new).astype(dtype)
+        x_new = jnp.where(zero | (resolved & jnp.logical_not(inside)), x, x_new).astype(dtype)
         floor = inside & (step <= 1e-9 * width0) & (step >= 0.9 * prev_step)
         stop = (
             zero
+            | resolved
             | (inside & (step <= eps4 * jnp.abs(x_new)))
             | (jnp.abs(hi_n - lo_n) <= eps4 * jnp.maximum(jnp.abs(lo_n), jnp.abs(hi_n)))
             | floor

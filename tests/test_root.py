@@ -1,6 +1,7 @@
 """Tests of the scalar root finder (`jaxcontact._root.bracketed_root`)."""
 
 import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np

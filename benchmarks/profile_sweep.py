@@ -53,10 +53,10 @@ def stages(samples):
                                            lift, jnp.isfinite(s.jumpoff_time),
                                            s.jumpoff_displacement, s.jumpoff_force)
 
-    def solve(g0, g1, eta, dg):
+    def solve(g0, g1, eta, dg, curves=False):
         return M.RelaxedStart(samples=samples).solve(
             jc.StandardModel(g0, g1, eta), PROFILE,
-            {"work_of_adhesion": dg, "depth": 1.0, "velocity": 1.0})
+            {"work_of_adhesion": dg, "depth": 1.0, "velocity": 1.0}, curves=curves)
 
     def events(f):
         return lambda *a: (lambda s: (s.force, s.jumpoff_time, s.max_tensile_force))(f(*a))
@@ -68,7 +68,9 @@ def stages(samples):
         ("bound of the jump-off time alone (a root per curve)", lambda *a: bound(*a)[0]),
         ("+ a time grid per curve from that bound, initial radius given", events(per_curve)),
         ("+ separation work", work),
-        ("the whole `RelaxedStart.solve` (summaries, status)", solve),
+        ("`RelaxedStart.solve`: the summaries (exact, no samples) and status", solve),
+        ("`RelaxedStart.solve(curves=True)`: the summaries and the sampled curves",
+         lambda *a: solve(*a, curves=True)),
     ]
 
 

@@ -28,15 +28,37 @@ $T_b$ *is* the jump-off time; after a finite hold it is an upper bound. With
 **Separation work.** $W = \int_\mathrm{lift}\max(-F, 0)\,(-\dot d)\,\mathrm{d}t
 = \int_{d_j}^{d_0}\max(-F(d), 0)\,\mathrm{d}d \ge 0$ [J]: the work the pulling machine does
 against the adhesive (tensile) force from the start of the lift to the jump-off at $d_j$
-(the area between the tensile part of the lift curve and $F = 0$). Computed by the
-trapezoidal rule over the samples in contact up to the last but one, $k - 1$; from there to
-the jump-off through $F = F_j + b\,s + c\,s^2$, $s = \sqrt{d - d_j}$, fitted to the jump-off
-force and samples $k$ and $k - 1$ (or $k - 1$ and $k - 2$ when sample $k$ lies within a
-quarter interval of the jump-off, where $F_k - F_j$ is round-off) and integrated exactly:
-exact for a pinned edge ($F$ linear in $d$) and for the square-root shape of a front at its
-fold. The remaining error is $O(h^{3/2})$ in the sample spacing
-$h$ (the square-root shape of the front near the fold in the trapezoids before); the tests
-measure it against the elastic JKR closed form.
+(the area between the tensile part of the lift curve and $F = 0$).
+
+*Relaxed start: exact, without samples.* With $v = d_0 = 1$ the lift is $d = 1 - t$ and
+$d_\mathrm{eff}(t) = D(t) = 1 - t + \sum_k r_k\tau_k\,\mathrm{expm1}(-t/\tau_k)$,
+$r_k = G_k/G_\infty$, convex and decreasing. The force is
+$F = 8G_\infty(a_0 D - I(a_0))$ while the edge is pinned ($D \ge h(a_0)$, up to $t_p$) and
+$F = F_f(a) = 8G_\infty(a\,h(a) - I(a))$ on the front, $a(t)$ the stable root of
+$h(a) = D(t)$, $I(a) = \int_0^a g$. It is compressive at the start and changes sign once,
+at $t_z$: in the pinned phase where $D = I(a_0)/a_0$, else on the front at the radius $a_z$
+with $F_f(a_z) = 0$; it stays tensile to the jump-off $T_b$ ($F_j < 0$: $a_\mathrm{fold} <
+a_z$). $t_p$, $t_z$, $T_b$ and $a_z$ are roots (`_root.bracketed_root`). Then
+
+$$W = 8G_\infty a_0\Big[\frac{\Delta^2}{2} + \sum_k r_k\tau_k^2 e^{-t_z/\tau_k}
+  \,\psi(\Delta/\tau_k)\Big] - \int_{\max(t_p, t_z)}^{T_b} F_f(a(t))\,\mathrm{d}t,
+  \qquad \Delta = \max(t_p - t_z, 0),\ \psi(x) = x + \mathrm{expm1}(-x) \ge 0,$$
+
+the first term the pinned tension in closed form, the second with $t = T_b - u^2$ (the
+front's square-root shape at the fold becomes smooth in $u$) by 32-point Gauss–Legendre
+quadrature in $u$. It agrees with the elastic JKR closed form to round-off and with a
+dense graded sampling of `retract` to 1e-10 (`tests/test_sweep.py`); the summaries of the
+relaxed start do not depend on `samples`, which sets only the curves of `curves=True`.
+
+*Full history: from the samples.* Computed by the trapezoidal rule over the samples in
+contact up to the last but one, $k - 1$; from there to the jump-off through
+$F = F_j + b\,s + c\,s^2$, $s = \sqrt{d - d_j}$, fitted to the jump-off force and samples
+$k$ and $k - 1$ (or $k - 1$ and $k - 2$ when sample $k$ lies within a quarter interval of
+the jump-off, where $F_k - F_j$ is round-off) and integrated exactly: exact for a pinned
+edge ($F$ linear in $d$) and for the square-root shape of a front at its fold. The
+remaining error is $O(h^{3/2})$ in the sample spacing $h$ (the square-root shape of the
+front near the fold in the trapezoids before), larger where the tension occupies few
+samples; the tests measure it against the relaxed start's exact value after a long hold.
 """
 
 from __future__ import annotations
@@ -45,14 +67,17 @@ import abc
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._elastic import profile_radius
 from .._foundation import FoundationGrid, simulate
 from .._profiles import front_displacement
 from .._pulloff import prony_arrays, retract
 from .._root import bracketed_root
-from .._solution import RESULTS
+from .._solution import RESULTS, is_error
+from .._validate import domain_ok
 
 __all__ = ["AbstractSweepModel", "RelaxedStart", "ApproachHoldLift", "PointResult"]
 
@@ -84,23 +109,118 @@ def _front_constants(rheology, profile, work_of_adhesion):
     one = jnp.ones_like(G_inf)
     # the touch radius g(a0) = d0 = 1, rounded up by a few ulp so that g(a0) >= d0 also after
     # round-off (retract flags a lift whose start lies beyond g(a0) as an advancing contact,
-    # with a tolerance below float32's resolution)
+    # with a tolerance below float32's resolution), and no larger than a bounded shape (a flat
+    # punch touches with its whole face: rounded beyond its edge it was an invalid radius)
     a0 = profile_radius(profile, one, throw=False) * (1 + 4 * jnp.finfo(one.dtype).eps)
+    a0 = jnp.minimum(a0, profile.max_radius)
     a_fold = profile.critical_radius(c, 0.5)
     h_crit = front_displacement(profile, jnp.minimum(a_fold, a0), c)
     return G / G_inf, tau, h_crit, a0
 
 
-def _lift_bound(ratio, tau, h_crit, hold):
-    """$T_b$ with $D(T_b) = h_c$ (module docstring); `hold` = inf for the relaxed start."""
-    decay = jnp.exp(-hold / tau)
+def _lift_D(ratio, tau, decay):
+    r"""$D(T)$ of the module docstring (`decay` = $e^{-t_h/\tau_k}$: 0 for the relaxed start,
+    where $D$ is the effective displacement $d_\mathrm{eff}$ of `retract`)."""
 
     def D(T):
         return 1.0 - T + jnp.sum(ratio * (decay * jnp.exp(-T / tau) + tau * jnp.expm1(-T / tau)))
 
+    return D
+
+
+def _lift_bound(ratio, tau, h_crit, hold):
+    """$T_b$ with $D(T_b) = h_c$ (module docstring); `hold` = inf for the relaxed start."""
+    decay = jnp.exp(-hold / tau)
+    D = _lift_D(ratio, tau, decay)
     hi = 1.0 - h_crit + jnp.sum(ratio * decay)
     zero = jnp.zeros_like(hi)
     return bracketed_root(lambda T: D(T) - h_crit, zero, hi, steps=64)
+
+
+# Gauss-Legendre nodes and weights on [0, 1] (the front's part of the relaxed start's
+# separation work, module docstring)
+_GL_U, _GL_W = np.polynomial.legendre.leggauss(32)
+_GL_U, _GL_W = 0.5 * (_GL_U + 1.0), 0.5 * _GL_W
+
+
+def _psi(x):
+    r"""$x + \mathrm{expm1}(-x) \ge 0$ for $x \ge 0$, by its series below 1e-2 (no
+    cancellation)."""
+    small = x < 1e-2
+    xs = jnp.where(small, x, 0.0)
+    series = xs * xs * (0.5 - xs * (1.0 / 6.0 - xs * (1.0 / 24.0 - xs * (1.0 / 120.0))))
+    return jnp.where(small, series, x + jnp.expm1(-jnp.where(small, 1.0, x)))
+
+
+class _RelaxedEvents(eqx.Module):
+    """The summaries of a relaxed-start lift, exact (module docstring), in scaled units."""
+
+    jumpoff_time: jnp.ndarray
+    jumpoff_radius: jnp.ndarray
+    jumpoff_force: jnp.ndarray
+    max_tensile_force: jnp.ndarray
+    separation_work: jnp.ndarray
+    ratio: jnp.ndarray
+    tau: jnp.ndarray
+    h_crit: jnp.ndarray
+    a0: jnp.ndarray
+
+
+def _relaxed_events(rheology, profile, dgamma):
+    """Jump-off, largest tensile force and separation work of a constant-speed lift ($v =
+    d_0 = 1$) from the relaxed contact at the touch radius, without sampling the curve."""
+    G_inf, G, tau = prony_arrays(rheology)
+    ratio = G / G_inf
+    c = jnp.sqrt(0.5 * jnp.pi * dgamma * (G_inf + jnp.sum(G))) / G_inf
+    _, _, h_crit, a0 = _front_constants(rheology, profile, dgamma)
+    a_fold = profile.critical_radius(c, 0.5)
+    a_crit = jnp.minimum(a_fold, a0)
+    can_recede = a0 > a_fold
+    # the edge stays pinned down to D = h(a0) (to the jump-off where the front cannot recede;
+    # a flat punch's g is infinite just beyond its edge, where a0 lies after its rounding up)
+    h_pin = jnp.where(can_recede, front_displacement(profile, a0, c), h_crit)
+    y0 = profile.integral_g(a0) / a0  # the pinned force vanishes at D = y0
+    D = _lift_D(ratio, tau, jnp.zeros_like(tau))
+
+    def front_force(a):
+        return 8.0 * G_inf * (a * front_displacement(profile, a, c) - profile.integral_g(a))
+
+    T_b = _lift_bound(ratio, tau, h_crit, jnp.inf)
+    # the force changes sign in the pinned phase (y0 > h(a0)) or on the front at a_z
+    # (a root that is not needed gets the bracket [hi, hi] and stops at once: a bracket
+    # without a sign change would be bisected to round-off, the loop running for all lanes)
+    pinned_zero = h_pin < y0
+    a_z = bracketed_root(front_force, jnp.where(pinned_zero, a0, a_crit), a0)
+    y_zero = jnp.where(pinned_zero, y0, front_displacement(profile, a_z, c))
+    targets = jnp.stack([h_pin, y_zero])
+    lo = jnp.stack([jnp.where(can_recede, 0.0, T_b), jnp.zeros_like(T_b)])
+    t_p, t_z = jax.vmap(lambda y, a: bracketed_root(lambda t: D(t) - y, a, T_b))(targets, lo)
+    # pinned tension, closed form: 8 G a0 int_{t_z}^{t_p} (D(t_z) - D(t)) dt
+    span = jnp.where(pinned_zero, jnp.maximum(t_p - t_z, 0.0), 0.0)
+    arms = jnp.sum(ratio * tau * tau * jnp.exp(-t_z / tau) * _psi(span / tau))
+    w_pin = 8.0 * G_inf * a0 * (0.5 * span * span + arms)
+    # the front from max(t_p, t_z) to T_b, t = T_b - u^2
+    U = jnp.sqrt(jnp.where(can_recede, jnp.maximum(T_b - jnp.maximum(t_p, t_z), 0.0), 0.0))
+    u = U * jnp.asarray(_GL_U, T_b.dtype)
+    d_eff = jax.vmap(D)(T_b - u * u)
+    # lanes without a front: a harmless stand-in (retract's choice)
+    m_safe = front_displacement(profile, jnp.maximum(a0, 2 * a_fold), c)
+    m = jnp.where(can_recede, jnp.maximum(d_eff, h_crit), m_safe)
+    a = profile.front_radius(m, c, a_fold, jnp.maximum(a0, 2 * a_fold))
+    w_front = U * jnp.sum(jnp.asarray(_GL_W, T_b.dtype) * -front_force(a) * 2.0 * u)
+    # the largest tensile force: the minimum of F_f over the radii the front visits
+    a_fc = profile.critical_radius(c, 1.5)
+    return _RelaxedEvents(
+        jumpoff_time=T_b,
+        jumpoff_radius=a_crit,
+        jumpoff_force=front_force(a_crit),
+        max_tensile_force=front_force(jnp.clip(a_fc, a_crit, a0)),
+        separation_work=w_pin + jnp.where(can_recede, w_front, 0.0),
+        ratio=ratio,
+        tau=tau,
+        h_crit=h_crit,
+        a0=a0,
+    )
 
 
 def _separation_work(d, force, attached, lift, detached, d_j, f_j):
@@ -161,10 +281,6 @@ class AbstractSweepModel(eqx.Module):
     duration_factor: float = eqx.field(static=True, default=1.5)
 
     name: ClassVar[str] = ""
-    #: Default bytes of one chunk per CPU device (`sweep`'s `memory_limit` where the backend
-    #: reports no memory limit): the fastest of 8, 32, 128, 512 MiB measured for the model
-    #: (`benchmarks/results/sweep.md`).
-    cpu_chunk_budget: ClassVar[int] = 512 * 2**20
     required: ClassVar[tuple] = ("work_of_adhesion", "depth", "velocity")
     # name -> default: None (absent unless given), a number, or the name of another parameter
     optional: ClassVar[dict] = {}
@@ -184,9 +300,15 @@ class AbstractSweepModel(eqx.Module):
         """One point in scaled units; `p` maps parameter names to scalars; with `curves`
         the result also holds the sampled curve."""
 
+    def cpu_chunk_budget(self, curves: bool) -> int:
+        """Default bytes of one chunk per CPU device (`sweep`'s `memory_limit` where the
+        backend reports no memory limit): the fastest of the sizes measured for the model
+        (`benchmarks/results/sweep.md`); 512 MiB unless a model says otherwise."""
+        return 512 * 2**20
+
     @abc.abstractmethod
-    def floats_per_curve(self, arms: int) -> int:
-        """Live floats per sample of one curve (without the curves' outputs), an upper
+    def floats_per_curve(self, arms: int, curves: bool) -> int:
+        """Live floats of one point (with `curves`: including the sampled curves), an upper
         estimate for sizing chunks."""
 
 
@@ -234,26 +356,58 @@ class RelaxedStart(AbstractSweepModel):
     """
 
     name: ClassVar[str] = "relaxed"
-    # chunks near the CPU's caches: 1.6-2x faster than 512 MiB (benchmarks/results/sweep.md)
-    cpu_chunk_budget: ClassVar[int] = 32 * 2**20
+
+    def cpu_chunk_budget(self, curves: bool) -> int:
+        # chunks near the CPU's caches (benchmarks/results/sweep.md): with the curves 32 MiB
+        # (1.6-2x faster than 512 MiB), the summaries alone 8 MiB (1.4x faster than 32 MiB)
+        return (32 if curves else 8) * 2**20
 
     def solve(self, rheology, profile, p, *, curves=False):
         dgamma = p["work_of_adhesion"]
-        ratio, tau, h_crit, a0 = _front_constants(rheology, profile, dgamma)
-        T_b = _lift_bound(ratio, tau, h_crit, jnp.inf)
+        ev = _relaxed_events(rheology, profile, dgamma)
+        T_b = ev.jumpoff_time
         duration = self.duration_factor * T_b
-        ts = jnp.linspace(0.0, 1.0, self.samples, dtype=T_b.dtype) * duration
-        one = jnp.ones_like(T_b)
-        sol = retract(rheology, profile, work_of_adhesion=dgamma, depth=one, velocity=one,
-                      ts=ts, contact_radius=a0, throw=False)
-        lift = jnp.ones(ts.shape, dtype=bool)
-        valid = _valid(ratio, tau, h_crit, T_b, p)
-        return _result(sol, sol.displacement, lift, 0.0, duration, ts, curves, valid)
+        valid = _valid(ev.ratio, ev.tau, ev.h_crit, T_b, p)
+        valid = valid & domain_ok(rheology) & domain_ok(profile) & (dgamma > 0)
+        summaries = dict(
+            max_tensile_force=ev.max_tensile_force,
+            jumpoff_force=ev.jumpoff_force,
+            jumpoff_displacement=1.0 - T_b,
+            jumpoff_time=T_b,
+            jumpoff_radius=ev.jumpoff_radius,
+            separation_work=ev.separation_work,
+        )
+        finite = jnp.asarray(True)
+        for value in summaries.values():
+            finite = finite & jnp.isfinite(value)
+        result = RESULTS.where(finite, RESULTS.detached, RESULTS.non_finite_result)
+        out = {}
+        if curves:
+            ts = jnp.linspace(0.0, 1.0, self.samples, dtype=T_b.dtype) * duration
+            one = jnp.ones_like(T_b)
+            sol = retract(rheology, profile, work_of_adhesion=dgamma, depth=one, velocity=one,
+                          ts=ts, contact_radius=ev.a0, throw=False)
+            # the curve's own failure: non-finite samples (retract's other results, e.g. an
+            # advancing contact, cannot occur on this lift; not reading `sol.result` lets XLA
+            # drop its events, which the exact summaries replace: 7.2 -> ms per 768 x 500)
+            finite = jnp.all(jnp.isfinite(sol.force)) & jnp.all(jnp.isfinite(sol.contact_radius))
+            result = RESULTS.where(finite, result, RESULTS.non_finite_result)
+            out = dict(time=ts, displacement=sol.displacement, force=sol.force,
+                       contact_radius=sol.contact_radius)
+        result = RESULTS.where(valid, result, RESULTS.invalid_input)
+        bad = is_error(result)
+        nan = jnp.asarray(jnp.nan, T_b.dtype)
+        summaries = {k: jnp.where(bad, nan, v) for k, v in summaries.items()}
+        return PointResult(**summaries, lift_duration=jnp.where(bad, nan, duration),
+                           status=result._value.astype(jnp.int32), **out)
 
-    def floats_per_curve(self, arms: int) -> int:
-        # XLA's compiled memory measures 6.3 floats per sample with one arm
-        # (benchmarks/bench_sweep.py); with a margin
-        return 8 + 2 * arms
+    def floats_per_curve(self, arms: int, curves: bool) -> int:
+        # the summaries: the quadrature's nodes and the roots (XLA's compiled memory: 98
+        # floats with one arm and 32 nodes); with the curves, `retract`'s samples (6.3
+        # floats per sample with one arm, benchmarks/bench_sweep.py), with a margin, and
+        # the curves' outputs
+        summaries = 4 * len(_GL_U) + 16 * arms + 16
+        return summaries + (int(self.samples) * (12 + 2 * arms) if curves else 0)
 
 
 class ApproachHoldLift(AbstractSweepModel):
@@ -305,7 +459,8 @@ class ApproachHoldLift(AbstractSweepModel):
         valid = _valid(ratio, tau, h_crit, T_b, p)
         return _result(sol, sol.displacement, lift, t_h, duration, ts - t_h, curves, valid)
 
-    def floats_per_curve(self, arms: int) -> int:
+    def floats_per_curve(self, arms: int, curves: bool) -> int:
         # XLA's compiled memory measures 9.7 (2000 samples) to 11.7 (500) floats per sample
         # with one arm: per-sample outputs and the free propagators (N x N per sample)
-        return 8 + 4 * arms * arms + 4 * arms
+        per_sample = 8 + 4 * arms * arms + 4 * arms + (4 if curves else 0)
+        return int(self.samples) * per_sample

@@ -18,10 +18,10 @@ same arguments (SPMD, as any multi-process JAX program).
 last chunk is padded with copies of a valid point whose results are dropped). By default
 the size follows from a budget per device (`memory_limit`, default: half of the device's
 memory limit where the backend reports one (GPUs), else the model's `cpu_chunk_budget`:
-32 MiB for `RelaxedStart`, whose chunks then stay near the CPU's caches, 512 MiB for
-`ApproachHoldLift`, which does much more work per byte) divided by an upper
-estimate of the bytes one curve needs (samples x live floats per sample of the model), and
-no larger than the points need (rounded up to 1/8 of an octave per device, so that sweeps of
+for `RelaxedStart` 8 MiB (summaries) or 32 MiB (with the curves), whose chunks then stay
+near the CPU's caches, 512 MiB for `ApproachHoldLift`, which does much more work per byte)
+divided by an upper estimate of the bytes one point needs (the model's `floats_per_curve`),
+and no larger than the points need (rounded up to 1/8 of an octave per device, so that sweeps of
 similar sizes share one compiled program).
 """
 
@@ -49,7 +49,7 @@ def default_precision() -> str:
     return "float64" if jax.default_backend() == "cpu" else "float32"
 
 
-def _device_budget(devices, model) -> int:
+def _device_budget(devices, model, curves) -> int:
     stats = None
     try:
         stats = devices[0].memory_stats()
@@ -57,16 +57,16 @@ def _device_budget(devices, model) -> int:
         stats = None
     if stats and stats.get("bytes_limit"):
         return int(stats["bytes_limit"]) // 2
-    return int(model.cpu_chunk_budget)
+    return int(model.cpu_chunk_budget(curves))
 
 
 def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_limit=None,
                    devices=None) -> int:
     """Curves per chunk: the memory budget per device over the estimated bytes per curve,
     a multiple of `n_devices`."""
-    per_sample = model.floats_per_curve(arms) + (4 if curves else 0)
-    per_curve = int(model.samples) * per_sample * itemsize + 4096
-    budget = memory_limit if memory_limit is not None else _device_budget(devices, model)
+    per_curve = model.floats_per_curve(arms, curves) * itemsize + 256
+    budget = (memory_limit if memory_limit is not None
+              else _device_budget(devices, model, curves))
     per_device = max(1, min(int(budget) // per_curve, _MAX_CHUNK))
     # the points in as few chunks as the budget allows, of equal size (1,000 points under a
     # budget of 760 run as two chunks of 500, not 760 + 240 padded to 760), rounded up to

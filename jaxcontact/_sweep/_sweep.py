@@ -91,8 +91,8 @@ def sweep(
     - `chunk_size`: curves per compiled call (rounded up to a multiple of the number of
       devices); default from `memory_limit`.
     - `memory_limit`: bytes per device a chunk may use (default: half the device memory where
-      the backend reports it, else the model's `cpu_chunk_budget`: 32 MiB for
-      `RelaxedStart`, 512 MiB for `ApproachHoldLift`).
+      the backend reports it, else the model's `cpu_chunk_budget`: for `RelaxedStart`
+      8 MiB, 32 MiB with `curves`; 512 MiB for `ApproachHoldLift`).
     - `progress`: print a progress line on stderr (process 0 only).
 
     Parameter names (SI units; see `jaxcontact._sweep._parameters`): the material `G0`,

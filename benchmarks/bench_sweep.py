@@ -1,11 +1,14 @@
 """Throughput, memory and float32 accuracy of `jaxcontact.sweep` (issue 13).
 
-1. Forward samples/s of `jc.sweep` (relaxed start, the CPU default float64) against the
-   batch size, from 1 to 10^6 curves, and of the vectorised-numpy implementation of the same
-   closed form (`bench_retract.numpy_model`, which computes the forces only: no events, no
-   separation work, no per-curve duration), run in chunks of 8,192 curves, measured in the
-   same run (interleaved medians). The sweep's time is the whole call: scaling, chunks,
-   device transfers and the labelled dataset.
+1. `jc.sweep` (relaxed start, the CPU default float64) against the batch size, from 1 to
+   10^6 curves, twice: the default (the summaries, computed exactly without sampling the
+   curve: curves/s) and `curves=True` (the summaries and the sampled curves: samples/s, up
+   to 10^5 curves: 10^6 would hold 16 GB of curves); against the vectorised-numpy
+   implementation of the same closed form on the same number of samples per curve
+   (`bench_retract.numpy_model`, which computes the forces only: no events, no separation
+   work, no per-curve duration; a numpy user needs these samples to get the summaries), run
+   in chunks of 8,192 curves, measured in the same run (interleaved medians). The sweep's
+   time is the whole call: scaling, chunks, device transfers and the labelled dataset.
 2. Memory per curve: XLA's compiled memory (arguments + outputs + temporaries of one chunk)
    and the growth of the peak resident memory of the process over the largest batch.
 3. One, two and four virtual CPU devices (`--xla_force_host_platform_device_count`): the
@@ -64,32 +67,41 @@ def timed(fn):
     return time.perf_counter() - t0
 
 
-def batch_table(samples, max_batch):
+def batch_table(samples, max_batch, max_curves_batch=100_000):
     model = jc.RelaxedStart(samples=samples)
     rows = []
     batches = [b for b in (1, 10, 100, 1_000, 10_000, 100_000, 1_000_000) if b <= max_batch]
     for b in batches:
         pts = points(b)
+        with_curves = b <= max_curves_batch
         first = timed(lambda p=pts: run_sweep(p, model))  # compile (one per chunk size)
+        if with_curves:
+            run_sweep(pts, model, curves=True)
         repeats = 5 if b <= 10_000 else (3 if b <= 100_000 else 1)
-        tj, tn = [], []
+        tj, tc, tn = [], [], []
         rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         for _ in range(repeats):
             tj.append(timed(lambda p=pts: run_sweep(p, model)))
+            if with_curves:
+                tc.append(timed(lambda p=pts: run_sweep(p, model, curves=True)))
             tn.append(timed(lambda p=pts: numpy_chunked(p, samples)))
         rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        ratios = [n / j for j, n in zip(tj, tn, strict=True)]
         mj, mn = statistics.median(tj), statistics.median(tn)
-        row = dict(batch=b, first_s=first, sweep_s=mj, numpy_s=mn,
-                   sweep_sps=b * samples / mj, numpy_sps=b * samples / mn,
-                   ratio=statistics.median(ratios), rss_growth_MiB=(rss1 - rss0) / 1024)
+        ratio = statistics.median([n / j for j, n in zip(tj, tn, strict=True)])
+        mc = statistics.median(tc) if tc else float("nan")
+        ratio_c = (statistics.median([n / c for c, n in zip(tc, tn, strict=True)])
+                   if tc else float("nan"))
+        row = dict(batch=b, first_s=first, sweep_s=mj, curves_s=mc, numpy_s=mn,
+                   sweep_cps=b / mj, curves_sps=b * samples / mc, numpy_sps=b * samples / mn,
+                   ratio=ratio, ratio_curves=ratio_c, rss_growth_MiB=(rss1 - rss0) / 1024)
         rows.append(row)
-        print(f"| {b:,} | {mj:.4g} | {b * samples / mj:.3g} | {mn:.4g} | {b * samples / mn:.3g} "
-              f"| {row['ratio']:.1f}x | {first:.2f} |", flush=True)
+        curves = (f"{mc:.4g} | {b * samples / mc:.3g} | {ratio_c:.1f}x" if tc else "- | - | -")
+        print(f"| {b:,} | {mj:.4g} | {b / mj:.3g} | {ratio:.1f}x | {curves} | {mn:.4g} | "
+              f"{b * samples / mn:.3g} | {first:.2f} |", flush=True)
     return rows
 
 
-def memory_per_curve(samples, chunks=(256, 4096)):
+def memory_per_curve(samples, chunks=(256, 4096), curves=False):
     """XLA's compiled memory of one chunk, per curve."""
     import jax
 
@@ -101,15 +113,16 @@ def memory_per_curve(samples, chunks=(256, 4096)):
     names = tuple(sorted(["G0", "G1", "eta1", "work_of_adhesion", "velocity", "R", "depth"]))
     for c in chunks:
         with jax.enable_x64(True):
-            fn, sharding = _compiled(model, _StandardFamily(), _ProfileFamily("R"), names, False,
-                                     tuple(jax.devices()), "float64")
+            fn, sharding = _compiled(model, _StandardFamily(), _ProfileFamily("R"), names,
+                                     curves, tuple(jax.devices()), "float64")
             cols = {n: jax.ShapeDtypeStruct((c,), np.float64, sharding=sharding) for n in names}
             mem = fn.lower(cols).compile().memory_analysis()
         total = (mem.argument_size_in_bytes + mem.output_size_in_bytes
                  + mem.temp_size_in_bytes)
         out[c] = total / c
-        print(f"compiled memory, chunk {c}: {total / 2**20:.1f} MiB = {total / c / 1024:.1f} KiB "
-              f"per curve ({samples} samples: {total / c / samples:.0f} B per sample)", flush=True)
+        print(f"compiled memory (curves={curves}), chunk {c}: {total / 2**20:.1f} MiB = "
+              f"{total / c / 1024:.2f} KiB per curve ({samples} samples: "
+              f"{total / c / samples:.1f} B per sample)", flush=True)
     return out
 
 
@@ -193,15 +206,17 @@ def main():
 
     print(f"devices: {jax.devices()}; jaxcontact {jc.__version__}; jax {jax.__version__}")
     if "batch" not in skip:
-        print("\n| curves | sweep [s] | sweep samples/s | numpy [s] | numpy samples/s | ratio | "
-              "first call [s] |\n| --- | --- | --- | --- | --- | --- | --- |")
+        print("\n| curves | summaries [s] | curves/s | ratio to numpy | with curves [s] | "
+              "samples/s | ratio to numpy | numpy [s] | numpy samples/s | first call [s] |\n"
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
         rows = batch_table(args.samples, args.max_batch)
         big = rows[-1]
         print(f"peak resident memory growth over the {big['batch']:,}-curve runs: "
               f"{big['rss_growth_MiB']:.0f} MiB")
     if "memory" not in skip:
         memory_per_curve(args.samples)
-        memory_per_curve(2000, chunks=(4096,))
+        memory_per_curve(args.samples, curves=True)
+        memory_per_curve(2000, chunks=(4096,), curves=True)
     if "devices" not in skip:
         print("\n| batch | 1 device | 2 devices (ratio) | 4 devices (ratio) |\n"
               "| --- | --- | --- | --- |")

@@ -81,6 +81,24 @@ def test_psi_absolute_accuracy():
     assert np.isfinite(float(jax.grad(_psi)(jnp.asarray(0.0))))
 
 
+@pytest.mark.parametrize(("dtype", "rtol"), [(jnp.float64, 5e-16), (jnp.float32, 2.5e-7)])
+def test_psi_relative_accuracy(dtype, rtol):
+    # psi_relative: the same function to a relative error of a few epsilon at every s,
+    # against 80-digit decimal arithmetic (psi itself is off by 2 eps / s at small s)
+    from decimal import Decimal, getcontext
+
+    from jaxcontact._arms import psi_relative
+
+    getcontext().prec = 80
+    s = np.array([1e-30, 1e-12, 1e-6, 5e-4, 0.01, 0.0999, 0.1001, 0.5, 0.999, 1.001, 3.0,
+                  50.0, 1e6])
+    s = s.astype(dtype)
+    exact = [float(1 - (1 - (-Decimal(float(x))).exp()) / Decimal(float(x))) for x in s]
+    got = np.asarray(psi_relative(jnp.asarray(s)), dtype=np.float64)
+    np.testing.assert_allclose(got, exact, rtol=rtol, atol=0)
+    assert float(psi_relative(jnp.asarray(0.0, dtype))) == 0.0
+
+
 # --------------------------------------------------------------------------------------
 # Long hold -> the relaxed-start model
 # --------------------------------------------------------------------------------------

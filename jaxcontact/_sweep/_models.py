@@ -40,9 +40,9 @@ at $t_z$: in the pinned phase where $D = I(a_0)/a_0$, else on the front at the r
 with $F_f(a_z) = 0$; it stays tensile to the jump-off $T_b$ ($F_j < 0$: $a_\mathrm{fold} <
 a_z$). $t_p$, $t_z$, $T_b$ and $a_z$ are roots (`_root.bracketed_root`). Then
 
-$$W = 8G_\infty a_0\Big[\frac{\Delta^2}{2} + \sum_k r_k\tau_k^2 e^{-t_z/\tau_k}
+$$W = 8G_\infty a_0\Big[\frac{\Delta^2}{2} + \sum_k r_k\tau_k\Delta\,e^{-t_z/\tau_k}
   \,\psi(\Delta/\tau_k)\Big] - \int_{\max(t_p, t_z)}^{T_b} F_f(a(t))\,\mathrm{d}t,
-  \qquad \Delta = \max(t_p - t_z, 0),\ \psi(x) = x + \mathrm{expm1}(-x) \ge 0,$$
+  \qquad \Delta = \max(t_p - t_z, 0),\ \psi(s) = 1 - \frac{1 - e^{-s}}{s},$$
 
 the first term the pinned tension in closed form, the second with $t = T_b - u^2$ (the
 front's square-root shape at the fold becomes smooth in $u$) by 32-point Gauss–Legendre
@@ -71,6 +71,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._arms import psi_relative
 from .._elastic import profile_radius
 from .._foundation import FoundationGrid, simulate
 from .._profiles import front_displacement
@@ -143,15 +144,6 @@ _GL_U, _GL_W = np.polynomial.legendre.leggauss(32)
 _GL_U, _GL_W = 0.5 * (_GL_U + 1.0), 0.5 * _GL_W
 
 
-def _psi(x):
-    r"""$x + \mathrm{expm1}(-x) \ge 0$ for $x \ge 0$, by its series below 1e-2 (no
-    cancellation)."""
-    small = x < 1e-2
-    xs = jnp.where(small, x, 0.0)
-    series = xs * xs * (0.5 - xs * (1.0 / 6.0 - xs * (1.0 / 24.0 - xs * (1.0 / 120.0))))
-    return jnp.where(small, series, x + jnp.expm1(-jnp.where(small, 1.0, x)))
-
-
 class _RelaxedEvents(eqx.Module):
     """The summaries of a relaxed-start lift, exact (module docstring), in scaled units."""
 
@@ -197,7 +189,7 @@ def _relaxed_events(rheology, profile, dgamma):
     t_p, t_z = jax.vmap(lambda y, a: bracketed_root(lambda t: D(t) - y, a, T_b))(targets, lo)
     # pinned tension, closed form: 8 G a0 int_{t_z}^{t_p} (D(t_z) - D(t)) dt
     span = jnp.where(pinned_zero, jnp.maximum(t_p - t_z, 0.0), 0.0)
-    arms = jnp.sum(ratio * tau * tau * jnp.exp(-t_z / tau) * _psi(span / tau))
+    arms = jnp.sum(ratio * tau * span * jnp.exp(-t_z / tau) * psi_relative(span / tau))
     w_pin = 8.0 * G_inf * a0 * (0.5 * span * span + arms)
     # the front from max(t_p, t_z) to T_b, t = T_b - u^2
     U = jnp.sqrt(jnp.where(can_recede, jnp.maximum(T_b - jnp.maximum(t_p, t_z), 0.0), 0.0))

@@ -177,16 +177,19 @@ def _relaxed_events(rheology, profile, dgamma):
     def front_force(a):
         return 8.0 * G_inf * (a * front_displacement(profile, a, c) - profile.integral_g(a))
 
-    T_b = _lift_bound(ratio, tau, h_crit, jnp.inf)
     # the force changes sign in the pinned phase (y0 > h(a0)) or on the front at a_z
     # (a root that is not needed gets the bracket [hi, hi] and stops at once: a bracket
     # without a sign change would be bisected to round-off, the loop running for all lanes)
     pinned_zero = h_pin < y0
     a_z = bracketed_root(front_force, jnp.where(pinned_zero, a0, a_crit), a0)
     y_zero = jnp.where(pinned_zero, y0, front_displacement(profile, a_z, c))
-    targets = jnp.stack([h_pin, y_zero])
-    lo = jnp.stack([jnp.where(can_recede, 0.0, T_b), jnp.zeros_like(T_b)])
-    t_p, t_z = jax.vmap(lambda y, a: bracketed_root(lambda t: D(t) - y, a, T_b))(targets, lo)
+    # D(t) = y for the jump-off (T_b), the end of pinning (t_p) and the zero of the force
+    # (t_z), one loop for the three: D(0) = 1 >= y and D(1 - y) <= y (D(t) <= 1 - t)
+    targets = jnp.stack([h_crit, h_pin, y_zero])
+    T_b, t_p, t_z = jax.vmap(
+        lambda y: bracketed_root(lambda t: D(t) - y, jnp.zeros_like(y), 1.0 - y))(targets)
+    t_p = jnp.minimum(jnp.where(can_recede, t_p, T_b), T_b)
+    t_z = jnp.minimum(t_z, T_b)
     # pinned tension, closed form: 8 G a0 int_{t_z}^{t_p} (D(t_z) - D(t)) dt
     span = jnp.where(pinned_zero, jnp.maximum(t_p - t_z, 0.0), 0.0)
     arms = jnp.sum(ratio * tau * span * jnp.exp(-t_z / tau) * psi_relative(span / tau))

@@ -170,11 +170,12 @@ def run_points(model, material, profile, scaled, *, dtype, curves, chunk_size=No
             hi = min(lo + chunk, n_points)
             idx = np.arange(lo, lo + chunk)
             idx = np.where(idx < hi, idx, lo)  # pad with copies of the chunk's first point
-            cols = {}
-            for n in names:
-                host = scaled[n][idx].astype(dtype)
-                cols[n] = jax.make_array_from_callback((chunk,), sharding,
-                                                       lambda index, h=host: h[index])
+            host = {n: scaled[n][idx].astype(dtype) for n in names}
+            if jax.process_count() == 1:  # one transfer for all columns
+                return fn(jax.device_put(host, sharding)), lo, hi
+            cols = {n: jax.make_array_from_callback((chunk,), sharding,
+                                                    lambda index, h=h: h[index])
+                    for n, h in host.items()}
             return fn(cols), lo, hi
 
         def collect(pending):

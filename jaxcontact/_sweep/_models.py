@@ -347,6 +347,11 @@ class RelaxedStart(AbstractSweepModel):
     time (found before the run from the effective displacement, see the module docstring), so
     a fraction `1/duration_factor` of the samples lies before the jump-off.
 
+    The summaries (jump-off, largest tensile force, separation work) are computed exactly,
+    without sampling the curve (module docstring): they do not depend on `samples` or
+    `duration_factor`, which shape only the curves of `sweep(..., curves=True)`
+    (`retract` at `samples` uniform times).
+
     **Fields:** `samples` (default 2000), `duration_factor` (default 1.5).
     """
 

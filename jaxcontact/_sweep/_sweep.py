@@ -85,8 +85,9 @@ def sweep(
       outer product of the swept values).
     - `points`: instead of `grid`, a list of parameter sets (mappings with the same names) or
       a mapping of equal-length 1-D arrays (and scalars, fixed): one dimension `point`.
-    - `model`: `RelaxedStart(...)` (default; `retract`) or `ApproachHoldLift(...)`
-      (`simulate`): the protocol, the samples per curve and how long the lift lasts
+    - `model`: `RelaxedStart(...)` (default; `retract`; its summaries are exact and
+      computed without samples) or `ApproachHoldLift(...)` (`simulate`; summaries from the
+      samples): the protocol, the samples per curve and how long the lift lasts
       (`duration_factor` times a bound of the jump-off time that every point reaches; see
       `jaxcontact._sweep._models`).
     - `curves`: also return the full curves (`time_s`, `displacement_m`, `force_N`,

@@ -132,7 +132,7 @@ def memory_per_curve(samples, chunks=(256, 4096), curves=False):
         with jax.enable_x64(True):
             fn, sharding = _compiled(model, _StandardFamily(), _ProfileFamily("R"), names,
                                      curves, tuple(jax.devices()), "float64")
-            cols = {n: jax.ShapeDtypeStruct((c,), np.float64, sharding=sharding) for n in names}
+            cols = jax.ShapeDtypeStruct((c, len(names)), np.float64, sharding=sharding)
             mem = fn.lower(cols).compile().memory_analysis()
         total = (mem.argument_size_in_bytes + mem.output_size_in_bytes
                  + mem.temp_size_in_bytes)

@@ -236,7 +236,7 @@ def test_default_cpu_chunk_fits_the_models_budget(model, curves):
                           *(["hold", "approach_velocity"] if model.name == "history" else [])]))
     fn, sharding = _compiled(model, _StandardFamily(), _ProfileFamily("R"), names, curves,
                              devices, "float64")
-    cols = {n: jax.ShapeDtypeStruct((chunk,), np.float64, sharding=sharding) for n in names}
+    cols = jax.ShapeDtypeStruct((chunk, len(names)), np.float64, sharding=sharding)
     mem = fn.lower(cols).compile().memory_analysis()
     used = mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes
     assert used <= model.cpu_chunk_budget(curves)

@@ -1,10 +1,11 @@
 """Running a sweep: chunks sized to memory, a 1-D device mesh, several processes, progress.
 
 **Devices.** The points of a chunk are split over a one-dimensional mesh of all devices
-(`jax.sharding.Mesh(jax.devices(), ("points",))`): the chunk's parameter arrays are created
-with `NamedSharding(mesh, PartitionSpec("points"))` and the vmapped model is `jax.jit`-ed
-with sharded inputs and outputs, so every device computes its slice and nothing is
-communicated during the computation (the points are independent).
+(`jax.sharding.Mesh(jax.devices(), ("points",))`): the chunk's parameters, one array of
+shape `(chunk, parameters)` (one transfer), are created with `NamedSharding(mesh,
+PartitionSpec("points", None))` and the vmapped model is `jax.jit`-ed with sharded inputs
+and outputs, so every device computes its slice and nothing is communicated during the
+computation (the points are independent).
 
 **Processes.** After `jax.distributed.initialize` `jax.devices()` lists the devices of every
 process; the same mesh then spans the hosts. Every process builds the same chunks (the
@@ -87,10 +88,14 @@ def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_li
 
 @lru_cache(maxsize=32)
 def _compiled(model, material, profile, names, curves, devices, dtype_name):
+    """The vmapped model on a chunk `(chunk, len(names))` of parameter columns (one array:
+    one host-to-device transfer per chunk), sharded by rows; and that input sharding."""
     mesh = Mesh(np.asarray(devices), ("points",))
-    sharding = NamedSharding(mesh, PartitionSpec("points"))
+    sharding = NamedSharding(mesh, PartitionSpec("points", None))
+    out_sharding = NamedSharding(mesh, PartitionSpec("points"))
 
-    def one(cols):
+    def one(row):
+        cols = {n: row[j] for j, n in enumerate(names)}
         rheology = material.build(cols)
         shape = profile.build(cols)
         # the models work in scaled units (depth = velocity = 1): the unit plausibility
@@ -100,7 +105,7 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
         with plausibility_checks(False), unchecked():
             return model.solve(rheology, shape, cols, curves=curves)
 
-    fn = jax.jit(jax.vmap(one), in_shardings=(sharding,), out_shardings=sharding)
+    fn = jax.jit(jax.vmap(one), in_shardings=(sharding,), out_shardings=out_sharding)
     return fn, sharding
 
 
@@ -170,12 +175,10 @@ def run_points(model, material, profile, scaled, *, dtype, curves, chunk_size=No
             hi = min(lo + chunk, n_points)
             idx = np.arange(lo, lo + chunk)
             idx = np.where(idx < hi, idx, lo)  # pad with copies of the chunk's first point
-            host = {n: scaled[n][idx].astype(dtype) for n in names}
-            if jax.process_count() == 1:  # one transfer for all columns
+            host = np.stack([scaled[n][idx] for n in names], axis=1).astype(dtype)
+            if jax.process_count() == 1:
                 return fn(jax.device_put(host, sharding)), lo, hi
-            cols = {n: jax.make_array_from_callback((chunk,), sharding,
-                                                    lambda index, h=h: h[index])
-                    for n, h in host.items()}
+            cols = jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
             return fn(cols), lo, hi
 
         def collect(pending):

@@ -121,9 +121,10 @@ def dense_separation_work(rheology, profile, dgamma, jumpoff_time):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_relaxed_separation_work_against_a_dense_sampling(seed):
-    # random materials (G_inf/G_1 from 1e-3 to 10, tau from 1e-5 to 10 lift times), weak
-    # to strong adhesion, paraboloid, cone and flat punch, in the sweep's units (depth =
-    # speed = 1): the exact separation work against retract's dense graded curve
+    # random materials (G_inf/G_1 from 1e-3 to 10, tau from 1e-5 to 10 lift times; then
+    # three-arm Prony series), weak to strong adhesion, paraboloid, cone and flat punch, in
+    # the sweep's units (depth = speed = 1): the exact separation work against retract's
+    # dense graded curve
     from jaxcontact._sweep._models import RelaxedStart
 
     rng = np.random.default_rng(seed)
@@ -133,6 +134,9 @@ def test_relaxed_separation_work_against_a_dense_sampling(seed):
             g0 = 10 ** rng.uniform(-0.5, 0.5)
             g1 = g0 * 10 ** rng.uniform(-3.0, 1.0)
             rheology = jc.StandardModel(G0=g0, G1=g1, eta1=(g0 + g1) * 10 ** rng.uniform(-4, 1))
+            if k >= 3:  # three Maxwell arms, relaxation times spread over 4 decades
+                rheology = jc.PronySeries(G_inf=1.0, G=10 ** rng.uniform(-1, 1.5, 3),
+                                          tau=10 ** rng.uniform(-4, 0, 3))
             profile = [jc.Parabola(R=10 ** rng.uniform(1, 4)),
                        jc.Cone(half_angle=rng.uniform(1.0, 1.5)),
                        jc.FlatPunch(radius=10 ** rng.uniform(-1, 1))][k % 3]

@@ -362,6 +362,17 @@ class AbstractProfile(eqx.Module):
     def touch_coordinate(self) -> TouchCoordinate:
         """The coordinate of the foundation grid of `simulate` (see `TouchCoordinate`)."""
 
+    def zero_force_radius(self, c, lo, hi) -> Array:
+        r"""The radius $a_z$ [m] in `[lo, hi]` where the force on the detachment front
+        vanishes: $a\,h(a) = I(a)$ with $h(a) = g(a) - c\sqrt a$, i.e.
+        $\int_0^a x\,g'(x)\,\mathrm{d}x = c\,a^{3/2}$ ($c$ [m^(1/2)]). A bracketed root
+        (`lo` or `hi` without a sign change on the bracket); closed forms override it."""
+
+        def force(a):
+            return a * front_displacement(self, a, c) - self.integral_g(a)
+
+        return bracketed_root(force, lo, hi)
+
 
 class AbstractCurvedProfile(AbstractProfile):
     """A profile with $g$ increasing from $g(0) = 0$ (every shape but the flat punch)."""
@@ -392,6 +403,11 @@ class AbstractPowerLawProfile(AbstractCurvedProfile):
     def stationary_radius(self, q, lo, hi):
         K, n = lax.stop_gradient(self.power_law())
         return (q / (n * K)) ** (1.0 / (n - 0.5))
+
+    def zero_force_radius(self, c, lo, hi):
+        # int_0^a x g' dx = K n a^(n+1) / (n+1) = c a^(3/2): a^(n-1/2) = (n+1) c / (n K)
+        _, n = self.power_law()
+        return jnp.clip(self.critical_radius(c, n + 1.0), lo, hi)
 
 
 # --------------------------------------------------------------------------------------

@@ -80,3 +80,25 @@ def test_vmap_over_profile_parameters():
 def test_bad_profile_parameters(ctor, name):
     with pytest.raises(ValueError, match=f"`{name}`"):
         ctor()
+
+
+@pytest.mark.parametrize(
+    "prof", [jc.Parabola(R=1e-4), jc.Cone(half_angle=1.2), jc.PowerLaw(c=3e5, n=3.7)],
+    ids=["parabola", "cone", "power-law"])
+def test_zero_force_radius_closed_form_against_root(prof):
+    # the front's zero-force radius, a h(a) = I(a): the power laws' closed form against the
+    # generic bracketed root of AbstractProfile (a second method), and the force there
+    from jaxcontact._profiles import AbstractProfile, front_displacement
+
+    c = 3e-4  # m^(1/2)
+    a_fc = float(prof.critical_radius(c, 1.5))  # F_f is increasing beyond its minimum
+    lo, hi = a_fc, 1e3 * a_fc
+    closed = float(prof.zero_force_radius(c, lo, hi))
+    root = float(AbstractProfile.zero_force_radius(prof, c, lo, hi))
+    assert lo < closed < hi
+    assert closed == pytest.approx(root, rel=1e-12)
+    a = jnp.asarray(closed)
+    force = a * front_displacement(prof, a, c) - prof.integral_g(a)
+    assert abs(float(force)) <= 1e-12 * float(prof.integral_g(a))
+    # outside the bracket: clipped to its ends
+    assert float(prof.zero_force_radius(c, 2 * closed, 3 * closed)) == pytest.approx(2 * closed)

@@ -38,7 +38,8 @@ $F = F_f(a) = 8G_\infty(a\,h(a) - I(a))$ on the front, $a(t)$ the stable root of
 $h(a) = D(t)$, $I(a) = \int_0^a g$. It is compressive at the start and changes sign once,
 at $t_z$: in the pinned phase where $D = I(a_0)/a_0$, else on the front at the radius $a_z$
 with $F_f(a_z) = 0$; it stays tensile to the jump-off $T_b$ ($F_j < 0$: $a_\mathrm{fold} <
-a_z$). $t_p$, $t_z$, $T_b$ and $a_z$ are roots (`_root.bracketed_root`). Then
+a_z$). $t_p$, $t_z$, $T_b$ are roots (`_root.bracketed_root`), $a_z$ too or a closed form
+(`zero_force_radius` of the profile). Then
 
 $$W = 8G_\infty a_0\Big[\frac{\Delta^2}{2} + \sum_k r_k\tau_k\Delta\,e^{-t_z/\tau_k}
   \,\psi(\Delta/\tau_k)\Big] - \int_{\max(t_p, t_z)}^{T_b} F_f(a(t))\,\mathrm{d}t,
@@ -181,7 +182,7 @@ def _relaxed_events(rheology, profile, dgamma):
     # (a root that is not needed gets the bracket [hi, hi] and stops at once: a bracket
     # without a sign change would be bisected to round-off, the loop running for all lanes)
     pinned_zero = h_pin < y0
-    a_z = bracketed_root(front_force, jnp.where(pinned_zero, a0, a_crit), a0)
+    a_z = profile.zero_force_radius(c, jnp.where(pinned_zero, a0, a_crit), a0)
     y_zero = jnp.where(pinned_zero, y0, front_displacement(profile, a_z, c))
     # D(t) = y for the jump-off (T_b), the end of pinning (t_p) and the zero of the force
     # (t_z), one loop for the three: D(0) = 1 >= y and D(1 - y) <= y (D(t) <= 1 - t)

@@ -341,7 +341,7 @@ def test_float32_against_float64():
     for name in ("max_tensile_force_N", "jumpoff_force_N", "jumpoff_time_s",
                  "separation_work_J", "jumpoff_contact_radius_m", "lift_duration_s"):
         rel = np.abs(d32[name].values / d64[name].values - 1)
-        assert rel.max() < (2e-5 if name == "separation_work_J" else 5e-6), (name, rel.max())
+        assert rel.max() < 5e-6, (name, rel.max())  # separation work: 1.2e-6 measured
     # the jump-off indentation may cross 0: relative to max(|d_j|, depth)
     d_j = d64.jumpoff_displacement_m
     err = np.abs(d32.jumpoff_displacement_m - d_j) / np.maximum(np.abs(d_j), 1e-7)

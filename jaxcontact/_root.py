@@ -51,6 +51,9 @@ def _solve(fn, lo, hi, steps, dtype):
     inside0 = (den != 0) & jnp.isfinite(x0)
     inside0 = inside0 & (x0 > jnp.minimum(lo, hi)) & (x0 < jnp.maximum(lo, hi))
     x0 = jnp.where(inside0, x0, mid)
+    # a root at a bracket end is the answer (Newton would land on the end, which is not
+    # strictly inside, and the loop would bisect towards it to round-off)
+    x0 = jnp.where(f_hi == 0, hi, jnp.where(f_lo == 0, lo, x0))
     inf = jnp.full_like(mid, jnp.inf)
 
     def cond(carry):

@@ -76,3 +76,13 @@ def test_one_sided_newton_stops_at_the_root(dtype):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if g(mid) > 0 else (lo, mid)
     assert float(x) == pytest.approx(lo, rel=8 * eps)
+
+
+def test_root_at_a_bracket_end_is_returned_at_once():
+    # a linear function whose root is the upper end of the bracket (the sweep's elastic
+    # lift, D(t) = 1 - t, bracketed by [0, 1 - y]): the end itself, in one step
+    for y in (0.25, -0.5, 2.0**-30):  # exact in binary: f(end) == 0
+        x = bracketed_root(lambda t, y=y: 1.0 - t - y, 0.0, 1.0 - y, steps=2)
+        assert float(x) == 1.0 - y
+        x = bracketed_root(lambda t, y=y: t - y, y, 5.0, steps=2)
+        assert float(x) == y

@@ -185,10 +185,17 @@ def _relaxed_events(rheology, profile, dgamma):
     a_z = profile.zero_force_radius(c, jnp.where(pinned_zero, a0, a_crit), a0)
     y_zero = jnp.where(pinned_zero, y0, front_displacement(profile, a_z, c))
     # D(t) = y for the jump-off (T_b), the end of pinning (t_p) and the zero of the force
-    # (t_z), one loop for the three: D(0) = 1 >= y and D(1 - y) <= y (D(t) <= 1 - t)
+    # (t_z), one loop for the three: D(0) = 1 >= y and D(1 - y) <= y (D(t) <= 1 - t; equal
+    # for an elastic solid, so the bracket ends a few ulp beyond: a sign change after
+    # round-off, else the loop bisects towards the end)
     targets = jnp.stack([h_crit, h_pin, y_zero])
-    T_b, t_p, t_z = jax.vmap(
-        lambda y: bracketed_root(lambda t: D(t) - y, jnp.zeros_like(y), 1.0 - y))(targets)
+    eps8 = 8 * jnp.finfo(targets.dtype).eps
+
+    def lift_time(y):
+        hi = (1.0 - y) + eps8 * (1.0 + jnp.abs(y))
+        return bracketed_root(lambda t: D(t) - y, jnp.zeros_like(y), hi)
+
+    T_b, t_p, t_z = jax.vmap(lift_time)(targets)
     t_p = jnp.minimum(jnp.where(can_recede, t_p, T_b), T_b)
     t_z = jnp.minimum(t_z, T_b)
     # pinned tension, closed form: 8 G a0 int_{t_z}^{t_p} (D(t_z) - D(t)) dt

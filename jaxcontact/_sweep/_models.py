@@ -134,7 +134,9 @@ def _lift_bound(ratio, tau, h_crit, hold):
     """$T_b$ with $D(T_b) = h_c$ (module docstring); `hold` = inf for the relaxed start."""
     decay = jnp.exp(-hold / tau)
     D = _lift_D(ratio, tau, decay)
+    # a few ulp beyond: an elastic solid has D(hi) = h_c exactly (see `_relaxed_events`)
     hi = 1.0 - h_crit + jnp.sum(ratio * decay)
+    hi = hi + 8 * jnp.finfo(hi.dtype).eps * (1.0 + jnp.abs(hi))
     zero = jnp.zeros_like(hi)
     return bracketed_root(lambda T: D(T) - h_crit, zero, hi, steps=64)
 

@@ -69,7 +69,8 @@ def add_parser(sub, common) -> None:
                    help="relaxed start (default) or the full approach-hold-lift history "
                         "(needs --hold)")
     p.add_argument("--samples", type=int, default=2000,
-                   help="samples per curve (default 2000)")
+                   help="samples per curve (default 2000); the relaxed model's summaries are "
+                        "exact and do not depend on it (it sets the curves of --curves)")
     p.add_argument("--duration-factor", type=float, default=1.5,
                    help="each lift lasts this many times the bound of its jump-off time "
                         "(> 1, default 1.5)")
@@ -321,7 +322,9 @@ def run(args) -> int:
                                     cells=args.cells)
     size = int(np.prod([len(v) for v in grid.values() if isinstance(v, list)]))
     if rank == 0:
-        print(f"jaxcontact {jc.__version__}: sweeping {size:,} point(s) x {args.samples} samples "
+        sampled = args.curves or args.model == "history"
+        what = f" x {args.samples} samples" if sampled else " (exact summaries)"
+        print(f"jaxcontact {jc.__version__}: sweeping {size:,} point(s){what} "
               f"({args.model} model) ...", file=sys.stderr, flush=True)
     ds = jc.sweep(grid, model=model, curves=args.curves, precision=args.precision,
                   chunk_size=args.chunk_size, progress=True)

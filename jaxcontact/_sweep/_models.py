@@ -49,8 +49,8 @@ the first term the pinned tension in closed form, the second with $t = T_b - u^2
 front's square-root shape at the fold becomes smooth in $u$) by 32-point Gauss–Legendre
 quadrature in $u$. It agrees with the elastic JKR closed form to round-off and with a
 dense graded sampling of `retract` to about 1e-10 (`tests/test_sweep.py` asserts 1e-12 and
-1e-8); the summaries of the
-relaxed start do not depend on `samples`, which sets only the curves of `curves=True`.
+1e-8); the summaries of the relaxed start do not depend on `samples`, which sets only the
+curves of `curves=True`.
 
 *Full history: from the samples.* Computed by the trapezoidal rule over the samples in
 contact up to the last but one, $k - 1$; from there to the jump-off through

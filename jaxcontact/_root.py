@@ -8,8 +8,10 @@ r"""Scalar root finding with implicit differentiation (the one home of the root 
 
 `bracketed_root` solves $f(x) = 0$ on a bracket $[x_\mathrm{lo}, x_\mathrm{hi}]$ with a
 safeguarded Newton iteration: it starts from the regula-falsi point of the bracket, takes the
-Newton step where it stays inside the shrinking bracket and bisects otherwise, and stops as
-soon as it has converged (see below) or after `steps` iterations. Under `vmap` the loop runs
+Newton step where it stays inside the shrinking bracket, tries the bracket end where the
+step lands on it to round-off, and bisects otherwise; it stops as soon as it has converged
+(see below) or after `steps` iterations. An end where $f = 0$ is returned at once, and so is,
+without a sign change, the end where $|f|$ is smaller. Under `vmap` the loop runs
 until every lane has stopped; finished lanes keep their value. Derivatives do not flow
 through the iterations: `jax.lax.custom_root` applies the implicit function theorem,
 $\partial x/\partial\theta = -(\partial f/\partial x)^{-1}\,\partial f/\partial\theta$, so
@@ -52,8 +54,14 @@ def _solve(fn, lo, hi, steps, dtype):
     inside0 = inside0 & (x0 > jnp.minimum(lo, hi)) & (x0 < jnp.maximum(lo, hi))
     x0 = jnp.where(inside0, x0, mid)
     # a root at a bracket end is the answer (Newton would land on the end, which is not
-    # strictly inside, and the loop would bisect towards it to round-off)
+    # strictly inside, and the loop would bisect towards it to round-off); without a sign
+    # change there is no root to find: the end where |f| is smaller, at once (the loop
+    # bisected towards an end for up to `steps` iterations, and under vmap every lane waited)
+    no_change = sign_lo * jnp.sign(f_hi) > 0
+    end = jnp.where(jnp.abs(f_lo) <= jnp.abs(f_hi), lo, hi)
+    x0 = jnp.where(no_change, end, x0)
     x0 = jnp.where(f_hi == 0, hi, jnp.where(f_lo == 0, lo, x0))
+    done0 = no_change | (f_lo == 0) | (f_hi == 0)
     inf = jnp.full_like(mid, jnp.inf)
 
     def cond(carry):
@@ -77,7 +85,16 @@ def _solve(fn, lo, hi, steps, dtype):
         # strictly inside, and the loop bisected away from the root for ~40 more steps.)
         resolved = (dfx != 0) & jnp.isfinite(correction) & (
             jnp.abs(correction) <= eps4 * jnp.abs(x))
+        # Newton lands on a bracket end to round-off (a root at the end, e.g. of a linear
+        # function): try that end next (from it Newton resolves the root in one step)
+        # instead of bisecting towards it
+        near_lo = jnp.abs(newton - lo_n) <= eps4 * jnp.abs(lo_n)
+        near_hi = jnp.abs(newton - hi_n) <= eps4 * jnp.abs(hi_n)
+        target = jnp.where(near_lo, lo_n, hi_n)
+        at_end = (dfx != 0) & jnp.isfinite(newton) & jnp.logical_not(inside) & (
+            near_lo | near_hi) & (target != x)
         x_new = jnp.where(inside, newton, 0.5 * (lo_n + hi_n))
+        x_new = jnp.where(at_end, target, x_new)
         step = jnp.abs(x_new - x)
         zero = fx == 0
         x_new = jnp.where(zero | (resolved & jnp.logical_not(inside)), x, x_new).astype(dtype)
@@ -100,7 +117,7 @@ def _solve(fn, lo, hi, steps, dtype):
             done | stop,
         )
 
-    carry = (jnp.asarray(0), lo, hi, x0, inf, jnp.zeros(jnp.shape(x0), bool))
+    carry = (jnp.asarray(0), lo, hi, x0, inf, done0)
     return lax.while_loop(cond, body, carry)[3]
 
 
@@ -118,7 +135,8 @@ def bracketed_root(
     - `fn`: scalar function of a scalar; it may close over arrays, and derivatives with
       respect to those flow through the root by implicit differentiation.
     - `lo`, `hi`: the bracket; `fn(lo)` and `fn(hi)` must have opposite signs (not checked:
-      without a sign change the result is one of the bracket ends).
+      without a sign change the result is the end where $|f|$ is smaller, without
+      iterating).
     - `steps`: largest number of safeguarded Newton/bisection steps (64 resolves any
       float64 bracket to round-off by bisection alone); the loop stops earlier once
       converged (module docstring), typically after 3–6 steps.

@@ -135,9 +135,7 @@ def _lift_bound(ratio, tau, h_crit, hold):
     """$T_b$ with $D(T_b) = h_c$ (module docstring); `hold` = inf for the relaxed start."""
     decay = jnp.exp(-hold / tau)
     D = _lift_D(ratio, tau, decay)
-    # a few ulp beyond: an elastic solid has D(hi) = h_c exactly (see `_relaxed_events`)
     hi = 1.0 - h_crit + jnp.sum(ratio * decay)
-    hi = hi + 8 * jnp.finfo(hi.dtype).eps * (1.0 + jnp.abs(hi))
     zero = jnp.zeros_like(hi)
     return bracketed_root(lambda T: D(T) - h_crit, zero, hi, steps=64)
 
@@ -181,24 +179,17 @@ def _relaxed_events(rheology, profile, dgamma):
     def front_force(a):
         return 8.0 * G_inf * (a * front_displacement(profile, a, c) - profile.integral_g(a))
 
-    # the force changes sign in the pinned phase (y0 > h(a0)) or on the front at a_z
-    # (a root that is not needed gets the bracket [hi, hi] and stops at once: a bracket
-    # without a sign change would be bisected to round-off, the loop running for all lanes)
+    # the force changes sign in the pinned phase (y0 > h(a0)) or on the front at a_z (not
+    # needed in the first case: the bracket [a0, a0])
     pinned_zero = h_pin < y0
     a_z = profile.zero_force_radius(c, jnp.where(pinned_zero, a0, a_crit), a0)
     y_zero = jnp.where(pinned_zero, y0, front_displacement(profile, a_z, c))
     # D(t) = y for the jump-off (T_b), the end of pinning (t_p) and the zero of the force
     # (t_z), one loop for the three: D(0) = 1 >= y and D(1 - y) <= y (D(t) <= 1 - t; equal
-    # for an elastic solid, so the bracket ends a few ulp beyond: a sign change after
-    # round-off, else the loop bisects towards the end)
+    # for an elastic solid, whose root is that end)
     targets = jnp.stack([h_crit, h_pin, y_zero])
-    eps8 = 8 * jnp.finfo(targets.dtype).eps
-
-    def lift_time(y):
-        hi = (1.0 - y) + eps8 * (1.0 + jnp.abs(y))
-        return bracketed_root(lambda t: D(t) - y, jnp.zeros_like(y), hi)
-
-    T_b, t_p, t_z = jax.vmap(lift_time)(targets)
+    T_b, t_p, t_z = jax.vmap(
+        lambda y: bracketed_root(lambda t: D(t) - y, jnp.zeros_like(y), 1.0 - y))(targets)
     t_p = jnp.minimum(jnp.where(can_recede, t_p, T_b), T_b)
     t_z = jnp.minimum(t_z, T_b)
     # pinned tension, closed form: 8 G a0 int_{t_z}^{t_p} (D(t_z) - D(t)) dt

@@ -32,8 +32,8 @@ PROFILE = jc.Parabola(R=1.0)
 def stages(samples):
     def bound(g0, g1, eta, dg):
         """The bound of the jump-off time and the touch radius."""
-        ratio, tau, h, a0 = M._front_constants(jc.StandardModel(g0, g1, eta), PROFILE, dg)
-        return M._lift_bound(ratio, tau, h, jnp.inf), a0
+        f = M._front_constants(jc.StandardModel(g0, g1, eta), PROFILE, dg)
+        return M._lift_bound(f.ratio, f.tau, f.h_crit, jnp.inf), f.a0
 
     def shared(g0, g1, eta, dg):
         ts = jnp.linspace(0.0, 0.5, samples)

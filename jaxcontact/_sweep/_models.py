@@ -105,7 +105,19 @@ class PointResult(eqx.Module):
     contact_radius: jnp.ndarray | None = None
 
 
-def _front_constants(rheology, profile, work_of_adhesion):
+class _Front(eqx.Module):
+    """The constants of a lift's detachment front in scaled units (module docstring)."""
+
+    G_inf: jnp.ndarray
+    ratio: jnp.ndarray  # G_k / G_inf, per arm
+    tau: jnp.ndarray
+    c: jnp.ndarray  # sqrt(pi dgamma G_g / 2) / G_inf
+    a_fold: jnp.ndarray
+    h_crit: jnp.ndarray  # h(min(a_fold, a0)): no edge holds once D < h_crit
+    a0: jnp.ndarray  # the touch radius, g(a0) = 1
+
+
+def _front_constants(rheology, profile, work_of_adhesion) -> _Front:
     G_inf, G, tau = prony_arrays(rheology)
     G_g = G_inf + jnp.sum(G)
     c = jnp.sqrt(0.5 * jnp.pi * work_of_adhesion * G_g) / G_inf
@@ -118,7 +130,8 @@ def _front_constants(rheology, profile, work_of_adhesion):
     a0 = jnp.minimum(a0, profile.max_radius)
     a_fold = profile.critical_radius(c, 0.5)
     h_crit = front_displacement(profile, jnp.minimum(a_fold, a0), c)
-    return G / G_inf, tau, h_crit, a0
+    return _Front(G_inf=G_inf, ratio=G / G_inf, tau=tau, c=c, a_fold=a_fold, h_crit=h_crit,
+                  a0=a0)
 
 
 def _lift_D(ratio, tau, decay):
@@ -154,20 +167,13 @@ class _RelaxedEvents(eqx.Module):
     jumpoff_force: jnp.ndarray
     max_tensile_force: jnp.ndarray
     separation_work: jnp.ndarray
-    ratio: jnp.ndarray
-    tau: jnp.ndarray
-    h_crit: jnp.ndarray
-    a0: jnp.ndarray
 
 
-def _relaxed_events(rheology, profile, dgamma):
+def _relaxed_events(front: _Front, profile) -> _RelaxedEvents:
     """Jump-off, largest tensile force and separation work of a constant-speed lift ($v =
     d_0 = 1$) from the relaxed contact at the touch radius, without sampling the curve."""
-    G_inf, G, tau = prony_arrays(rheology)
-    ratio = G / G_inf
-    c = jnp.sqrt(0.5 * jnp.pi * dgamma * (G_inf + jnp.sum(G))) / G_inf
-    _, _, h_crit, a0 = _front_constants(rheology, profile, dgamma)
-    a_fold = profile.critical_radius(c, 0.5)
+    G_inf, ratio, tau, c = front.G_inf, front.ratio, front.tau, front.c
+    a_fold, h_crit, a0 = front.a_fold, front.h_crit, front.a0
     a_crit = jnp.minimum(a_fold, a0)
     can_recede = a0 > a_fold
     # the edge stays pinned down to D = h(a0), or to the jump-off where the front cannot
@@ -213,10 +219,6 @@ def _relaxed_events(rheology, profile, dgamma):
         jumpoff_force=front_force(a_crit),
         max_tensile_force=front_force(jnp.clip(a_fc, a_crit, a0)),
         separation_work=w_pin + jnp.where(can_recede, w_front, 0.0),
-        ratio=ratio,
-        tau=tau,
-        h_crit=h_crit,
-        a0=a0,
     )
 
 
@@ -309,11 +311,12 @@ class AbstractSweepModel(eqx.Module):
         estimate for sizing chunks."""
 
 
-def _valid(ratio, tau, h_crit, T_b, p):
+def _valid(front: _Front, T_b, p):
     """A point the model can run: finite inputs, positive relaxation times (no underflow in
     the scaling) and a finite positive bound of the jump-off time."""
-    ok = jnp.all(jnp.isfinite(ratio)) & jnp.all(tau > 0) & jnp.all(jnp.isfinite(tau))
-    ok = ok & jnp.isfinite(h_crit) & jnp.isfinite(T_b) & (T_b > 0)
+    tau = front.tau
+    ok = jnp.all(jnp.isfinite(front.ratio)) & jnp.all(tau > 0) & jnp.all(jnp.isfinite(tau))
+    ok = ok & jnp.isfinite(front.h_crit) & jnp.isfinite(T_b) & (T_b > 0)
     for value in p.values():
         ok = ok & jnp.isfinite(value)
     return ok
@@ -366,10 +369,11 @@ class RelaxedStart(AbstractSweepModel):
 
     def solve(self, rheology, profile, p, *, curves=False):
         dgamma = p["work_of_adhesion"]
-        ev = _relaxed_events(rheology, profile, dgamma)
+        front = _front_constants(rheology, profile, dgamma)
+        ev = _relaxed_events(front, profile)
         T_b = ev.jumpoff_time
         duration = self.duration_factor * T_b
-        valid = _valid(ev.ratio, ev.tau, ev.h_crit, T_b, p)
+        valid = _valid(front, T_b, p)
         valid = valid & domain_ok(rheology) & domain_ok(profile) & (dgamma > 0)
         summaries = dict(
             max_tensile_force=ev.max_tensile_force,
@@ -388,7 +392,7 @@ class RelaxedStart(AbstractSweepModel):
             ts = jnp.linspace(0.0, 1.0, self.samples, dtype=T_b.dtype) * duration
             one = jnp.ones_like(T_b)
             sol = retract(rheology, profile, work_of_adhesion=dgamma, depth=one, velocity=one,
-                          ts=ts, contact_radius=ev.a0, throw=False)
+                          ts=ts, contact_radius=front.a0, throw=False)
             # the curve's own failure: non-finite samples (retract's other results, e.g. an
             # advancing contact, cannot occur on this lift; not reading `sol.result` lets XLA
             # drop its events, which the exact summaries replace: 7.2 -> 6.3 ms per 768 x 500)
@@ -443,8 +447,8 @@ class ApproachHoldLift(AbstractSweepModel):
         dgamma = p["work_of_adhesion"]
         hold = p["hold"]
         v_in = p["approach_velocity"]
-        ratio, tau, h_crit, _ = _front_constants(rheology, profile, dgamma)
-        T_b = _lift_bound(ratio, tau, h_crit, hold)
+        front = _front_constants(rheology, profile, dgamma)
+        T_b = _lift_bound(front.ratio, front.tau, front.h_crit, hold)
         duration = self.duration_factor * T_b
         dtype = T_b.dtype
         n_a, n_h, n_l = self._counts()
@@ -458,7 +462,7 @@ class ApproachHoldLift(AbstractSweepModel):
         sol = simulate(rheology, profile, dgamma, ts, d, grid=FoundationGrid(cells=self.cells),
                        throw=False)
         lift = jnp.arange(ts.shape[0]) >= n_a + n_h
-        valid = _valid(ratio, tau, h_crit, T_b, p)
+        valid = _valid(front, T_b, p)
         return _result(sol, sol.displacement, lift, t_h, duration, ts - t_h, curves, valid)
 
     def floats_per_curve(self, arms: int, curves: bool) -> int:

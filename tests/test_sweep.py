@@ -102,21 +102,26 @@ def test_elastic_flat_punch_kendall():
     np.testing.assert_allclose(ds.jumpoff_contact_radius_m.values, a, rtol=1e-12)
 
 
+def trapezoid_separation_work(sol):
+    """$\\int\\max(-F, 0)\\,(-dd)$ of a `retract` curve by the trapezoidal rule over its
+    samples in contact, closed by the jump-off (force, indentation) as the last point."""
+    F, d = np.asarray(sol.force), np.asarray(sol.displacement)
+    inside = F != 0
+    tension = np.append(np.maximum(-F[inside], 0.0), -float(sol.jumpoff_force))
+    d = np.append(d[inside], float(sol.jumpoff_displacement))
+    return float(np.sum(0.5 * (tension[:-1] + tension[1:]) * -np.diff(d)))
+
+
 def dense_separation_work(rheology, profile, dgamma, jumpoff_time):
-    """$\\int_0^{t_j}\\max(-F, 0)\\,dt$ of `retract` (v = d0 = 1) by the trapezoidal rule on
+    """The separation work of `retract` (v = d0 = 1) by `trapezoid_separation_work` on
     2 x 200,001 samples graded toward the jump-off (t = T (1 - (1 - x)^2)) over the whole
-    lift and over its last per cent, and the jump-off force as the last sample."""
+    lift and over its last per cent."""
     x = np.linspace(0.0, 1.0, 200_001)
     grade = 1.0 - (1.0 - x) ** 2
     T = jumpoff_time * (1 + 1e-12)
     ts = np.sort(np.concatenate([T * grade, T * (0.99 + 0.01 * grade)]))
-    sol = jc.retract(rheology, profile, work_of_adhesion=dgamma, depth=1.0, velocity=1.0,
-                     ts=ts, throw=False)
-    F = np.asarray(sol.force)
-    inside = F != 0
-    tension = np.append(np.maximum(-F[inside], 0.0), -float(sol.jumpoff_force))
-    t = np.append(ts[inside], float(sol.jumpoff_time))
-    return float(np.sum(0.5 * (tension[:-1] + tension[1:]) * np.diff(t)))
+    return trapezoid_separation_work(jc.retract(rheology, profile, work_of_adhesion=dgamma,
+                                                depth=1.0, velocity=1.0, ts=ts, throw=False))
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -198,12 +203,8 @@ def test_relaxed_matches_retract_and_lift_reaches_jumpoff(relaxed):
                           ("jumpoff_displacement_m", sol.jumpoff_displacement)]:
             np.testing.assert_allclose(float(p[name]), float(ref), rtol=1e-9)
         # separation work against the dense trapezoid of retract's curve to its jump-off
-        F, d = np.asarray(sol.force), np.asarray(sol.displacement)
-        inside = F != 0
-        tension = np.append(np.maximum(-F[inside], 0.0), -float(sol.jumpoff_force))
-        d = np.append(d[inside], float(sol.jumpoff_displacement))
-        W = np.sum(0.5 * (tension[:-1] + tension[1:]) * -np.diff(d))
-        np.testing.assert_allclose(float(p.separation_work_J), W, rtol=1e-4)
+        np.testing.assert_allclose(float(p.separation_work_J), trapezoid_separation_work(sol),
+                                   rtol=1e-4)
 
 
 def test_points_and_list_of_sets_match_grid(relaxed):

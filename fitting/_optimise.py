@@ -581,7 +581,16 @@ def _validity_warnings(spec, curves, profile, radius_model, valid) -> list[str]:
                        "beyond about 0.3 R the parabolic (small-indentation) profile of the "
                        "model departs from a sphere; check the radius, or use a tabulated "
                        "sphere profile")
-    if spec.model == "relaxed" and not any("hold" in c.segment_names for c in curves):
+    # a curve whose approach was measured but not held: the relaxed start is contradicted by
+    # the curve itself (a retract-only curve says nothing about how the contact was made)
+    # (a loader's inferred one-sample "approach" at the top of a pure lift is no approach)
+    def measured_approach(c):
+        return ("approach" in c.segment_names
+                and np.count_nonzero(c.segment == c.segment_names.index("approach")) > 1)
+
+    unheld = [c for c in curves if measured_approach(c) and "hold" not in c.segment_names]
+    if spec.model == "relaxed" and unheld:
         out.append("the relaxed model assumes the contact was held until fully relaxed before "
-                   "the lift, but no curve has a hold segment; consider model='history'")
+                   f"the lift, but {len(unheld)} curve(s) have an approach and no hold segment; "
+                   "consider model='history'")
     return out

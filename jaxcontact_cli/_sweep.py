@@ -87,8 +87,11 @@ def add_parser(sub, common) -> None:
     p.add_argument("--plot", type=Path, default=None,
                    help="plot file (default: --out with .png)")
     p.add_argument("--no-plot", action="store_true", help="do not write the plot")
-    p.add_argument("--plot-summary", choices=_SUMMARY_NAMES, default="max_tensile_force_N",
-                   help="summary on the plot's y axis (default max_tensile_force_N)")
+    p.add_argument("--plot-summary", choices=_SUMMARY_NAMES, default="separation_work_J",
+                   help="summary on the plot's y axis (default separation_work_J: from a "
+                        "relaxed start the maximum tensile force is the elastic JKR value "
+                        "with the effective work of adhesion at every speed, so it is flat; "
+                        "the work of separation shows the speed dependence)")
     p.add_argument("--plot-x", default=None,
                    help="swept option on the plot's x axis (default: the one with most values)")
     p.add_argument("--cpu-devices", type=int, default=None,
@@ -250,7 +253,7 @@ def _plot(ds, path, summary, x, log):
     import numpy as np
 
     swept = [d for d in ds[summary].dims]
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    fig, ax = plt.subplots(figsize=(7.6, 4.4))
     y = ds[summary]
     note = []
     if not swept:
@@ -274,15 +277,19 @@ def _plot(ds, path, summary, x, log):
                 v = float(ds[line][i])
                 ax.plot(xs, values.isel({line: i}).values, "o-", ms=3,
                         label=f"{line} = {v:.3g} {ds[line].attrs.get('units', '')}")
-            ax.legend(fontsize=8)
+            # beside the axes, never over a line
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                      borderaxespad=0.0)
         if log.get(x):
             ax.set_xscale("log")
         finite = values.values[np.isfinite(values.values)]
         if finite.size and finite.min() > 0 and finite.max() > 30 * finite.min():
             ax.set_yscale("log")
         ax.set_xlabel(f"{x} [{ds[x].attrs.get('units', '')}]")
-        label = summary.replace("_", " ")
-        ax.set_ylabel(("−" if flip else "") + label)
+        unit = ds[summary].attrs.get("units", "")
+        name = summary.rsplit("_", 1)[0] if unit else summary
+        label = name.replace("_", " ")
+        ax.set_ylabel(("−" if flip else "") + label + (f" [{unit}]" if unit else ""))
     ax.set_title(f"jaxcontact sweep ({ds.attrs['model']})" + (": " + ", ".join(note)
                                                                if note else ""), fontsize=9)
     ax.grid(True, which="both", alpha=0.3)

@@ -439,7 +439,22 @@ def test_r_squared_in_contact_excludes_the_free_tail(noisy_fit):
 
 
 def test_validity_warnings():
-    with pytest.warns(fitting.ModelValidityWarning, match="no curve has a hold"):
+    # retract-only curves: the relaxed start is the user's statement, nothing in the data
+    # contradicts it (the notebook's synthetic relaxed-start fit was warned before)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fitting.ModelValidityWarning)
         res = fitting.fit(_curves(), radius=R, n_starts=STARTS, progress=False)
-    assert any("no curve has a hold" in w for w in res.warnings)
+    assert not any("hold" in w for w in res.warnings)
     assert not any("contact radius reaches" in w for w in res.warnings)  # a0 = 0.29 R
+    # a measured approach straight into the lift (no hold) contradicts the relaxed start
+    c = _curves()[0]
+    k = 8
+    t_app = np.linspace(-1.0, 0.0, k + 1)[:-1]
+    approach = fitting.Curve(
+        time=np.r_[t_app, c.time], displacement=np.r_[D0 * (t_app + 1.0), c.displacement],
+        force=np.r_[np.linspace(0.0, c.force[0], k), c.force],
+        segment=np.r_[np.zeros(k, int), np.ones(len(c), int)],
+        segment_names=("approach", "retract"))
+    with pytest.warns(fitting.ModelValidityWarning, match="an approach and no hold"):
+        res = fitting.fit([approach], radius=R, n_starts=STARTS, progress=False)
+    assert any("1 curve(s) have an approach and no hold" in w for w in res.warnings)

@@ -58,6 +58,7 @@ from ._method import AbstractMethod, DiffraxODE, ExactUpdate
 from ._profiles import AbstractProfile, front_displacement
 from ._rheology import AbstractRheology
 from ._root import bracketed_root
+from ._sharding import pick
 from ._solution import (
     RESULTS,
     ContactSolution,
@@ -317,17 +318,18 @@ def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact
     has_prev = i_j > 0
     i_prev = jnp.maximum(i_j - 1, 0)
     if velocity is not None:
-        t_a = jnp.where(has_prev, ts[i_prev], 0.0)
+        t_a = jnp.where(has_prev, pick(ts, i_prev), 0.0)
         delta_a = -velocity * t_a
-        w_a = jnp.where(has_prev, w[i_prev], jnp.zeros_like(tau))
+        w_a = jnp.where(has_prev, pick(w, i_prev), jnp.zeros_like(tau))
         slope = -velocity
     else:
-        t_a = jnp.where(has_prev, ts[i_prev], ts[0])
-        delta_a = jnp.where(has_prev, delta[i_prev], delta[0])
-        w_a = jnp.where(has_prev, w[i_prev], w[0])
-        span_ = ts[i_j] - t_a
-        slope = jnp.where(span_ > 0, (delta[i_j] - delta_a) / jnp.where(span_ > 0, span_, 1.0), 0)
-    span = ts[i_j] - t_a
+        t_a = jnp.where(has_prev, pick(ts, i_prev), ts[0])
+        delta_a = jnp.where(has_prev, pick(delta, i_prev), delta[0])
+        w_a = jnp.where(has_prev, pick(w, i_prev), w[0])
+        span_ = pick(ts, i_j) - t_a
+        rise = pick(delta, i_j) - delta_a
+        slope = jnp.where(span_ > 0, rise / jnp.where(span_ > 0, span_, 1.0), 0)
+    span = pick(ts, i_j) - t_a
     seg_ok = detached & (span > 0)
     # on lanes without a bracketing segment, solve a harmless stand-in problem
     seg_args = (depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio)
@@ -339,7 +341,7 @@ def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact
         return _segment_deff(u, *seg_args) - h_target
 
     u_j = bracketed_root(resid, jnp.zeros_like(span_safe), span_safe, steps=64)
-    t_j = jnp.where(seg_ok, t_a + u_j, ts[i_j])
+    t_j = jnp.where(seg_ok, t_a + u_j, pick(ts, i_j))
     nan = jnp.asarray(jnp.nan, ts.dtype)
     jumpoff_time = jnp.where(detached, t_j, nan)
     jumpoff_disp = jnp.where(detached, depth + delta_a + slope * (t_j - t_a), nan)

@@ -35,6 +35,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from ._sharding import while_loop
+
 __all__ = ["bracketed_root", "concave_root", "newton_root"]
 
 
@@ -118,7 +120,7 @@ def _solve(fn, lo, hi, steps, dtype):
         )
 
     carry = (jnp.asarray(0), lo, hi, x0, inf, done0)
-    return lax.while_loop(cond, body, carry)[3]
+    return while_loop(cond, body, carry)[3]
 
 
 def bracketed_root(

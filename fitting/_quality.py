@@ -185,12 +185,12 @@ def convergence(converged: bool, steps: int, max_steps: int | None, *,
         out.update(reason="converged", advice=[])
         return out
     if max_steps is not None and steps >= int(max_steps):
-        reason = (f"the best start stopped at the step limit ({steps} of {max_steps} "
-                  "iterations) while chi2 was still decreasing")
+        reason = (f"the best start stopped at the step limit (max_steps {max_steps}) while "
+                  "chi2 was still decreasing")
         advice = [f"more iterations (max_steps={2 * int(max_steps)}; command line "
                   f"--max-steps {2 * int(max_steps)})"]
     else:
-        reason = (f"the best start stopped after {steps} iterations without meeting the "
+        reason = (f"the best start stopped after {steps} steps without meeting the "
                   "tolerance (no step lowered chi2: a flat or non-smooth valley, or "
                   "non-finite residuals)")
         advice = ["more starts (n_starts; command line --starts)"]

@@ -56,6 +56,7 @@ import numpy as np
 from ._curve import DataError
 from ._prepare import SEGMENTS, noise_level
 from ._preprocess import _detect_index
+from ._uncertainty import derived_quantities
 
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
            "segment_quality", "contact_outside", "convergence", "check_contact_signal",
@@ -236,7 +237,7 @@ def check_contact_signal(curves, spec) -> None:
 
 def assess(result, *, max_steps: int | None = None) -> list[str]:
     """Fill the quality fields of a :class:`FitResult` (`r_squared_unweighted`,
-    `segments`, `flags`, `convergence`, `stderr_scale`) and return the new warning
+    `segments`, `flags`, `convergence`, `stderr_scale`, `derived`) and return the new warning
     messages (also appended to `result.warnings`)."""
     data = result.data
     valid = np.asarray(data.valid) > 0
@@ -278,6 +279,8 @@ def assess(result, *, max_steps: int | None = None) -> list[str]:
                                   + "; the values are the best point found; try: "
                                   + "; ".join(result.convergence["advice"]))
     result.flags = flags
+    result.derived = derived_quantities(result.spec, result.values, result.covariance,
+                                        result.status)
     new = list(flags.values())
     result.warnings = list(result.warnings) + new
     return new

@@ -1,26 +1,29 @@
 r"""Fit outputs as data: ``parameters.json``, ``parameters.csv``, ``fit.csv``.
 
 ``parameters.json`` (strict JSON: no NaN or Infinity; a missing number is ``null`` with the
-reason in ``status``): per parameter ``"<name>_<unit>": {"value", "stderr",
-"stderr_noise", "relative_stderr", "status", "fixed"}`` (``stderr``: the Gauss–Newton
-error scaled by $\sqrt{\chi^2_\mathrm{red}}$, lmfit's ``scale_covar``; ``stderr_noise``: the
-error the noise alone would give, ``stderr`` / $\sqrt{\chi^2_\mathrm{red}}$; ``stderr_basis``
-says which in words, ``stderr_scale`` gives the factor); derived values of the standard
-model (``G_inf_Pa``, ``tau_s``); quality (``r_squared`` — weighted by the measured samples
-each kept sample stands for, ``r_squared_weighting`` says so — ``r_squared_unweighted``,
-``r_squared_contact``, ``reduced_chi2``, ``chi2``, ``aic``, ``bic``, ``n_data``,
-``n_free``, ``converged``, ``convergence`` with ``reason`` and ``advice``, ``status``
-"ok" or "flagged", ``adequate``, ``flags`` (code → message, :mod:`fitting._quality`),
-``segments``: per fitted segment $R^2$ (weighted and unweighted), reduced $\chi^2$ and the
-largest residual in σ); the model (``model``, ``rheology``, ``radius_m``, ``profile`` and
-``profile_parameters``, ``loading``, ``contact_point`` and ``force_offset`` choices,
-``model_selection`` for ``rheology="auto"``); the search (``start_losses``);
-``correlation``; ``warnings``; ``timings_s``; ``inputs`` (each curve's
+reason in ``status``): per parameter ``"<name>_<unit>": {"value", "stderr", "stderr_noise",
+"relative_stderr", "status", "fixed"}`` (``stderr``: the Gauss–Newton error scaled by
+$\sqrt{\chi^2_\mathrm{red}}$, lmfit's ``scale_covar``; ``stderr_noise``: the error the noise
+alone would give, ``stderr`` / $\sqrt{\chi^2_\mathrm{red}}$; ``stderr_basis`` says which in
+words, ``stderr_scale`` gives the factor); derived quantities with their standard errors
+from the covariance and ``"derived": true`` (Young's moduli ``E0_Pa``, ``E1_Pa``,
+``E_inf_Pa`` = 3G, incompressible; ``G_inf_Pa``, ``tau_s``; for a Prony series ``G_0_Pa``,
+``E_0_Pa``, ``E_inf_Pa``, ``E_k_Pa``); quality (``r_squared`` — weighted by the measured
+samples each kept sample stands for, ``r_squared_weighting`` says so —
+``r_squared_unweighted``, ``r_squared_contact``, ``reduced_chi2``, ``chi2``, ``aic``,
+``bic``, ``n_data``, ``n_free``, ``converged``, ``convergence`` with ``reason`` and
+``advice``, ``status`` "ok" or "flagged", ``adequate``, ``flags`` (code → message,
+:mod:`fitting._quality`), ``segments``: per fitted segment $R^2$ (weighted and unweighted),
+reduced $\chi^2$ and the largest residual in σ); the model (``model``, ``rheology``,
+``radius_m``, ``profile`` and ``profile_parameters``, ``loading``, ``contact_point`` and
+``force_offset`` choices, ``model_selection`` for ``rheology="auto"``); the search
+(``start_losses``); ``correlation``; ``warnings``; ``timings_s``; ``inputs`` (each curve's
 source, segments, samples, duration, spring constant, and its detected contact point and
 baseline when a loader found them).
 
-``parameters.csv``: one row per parameter:
-``parameter,unit,value,stderr,relative_stderr,status,fixed,stderr_noise,stderr_basis``
+``parameters.csv``: one row per parameter, then one per derived quantity (``derived``
+True: Young's moduli E = 3G, G_inf, E_inf, tau with errors from the covariance):
+``parameter,unit,value,stderr,relative_stderr,status,fixed,stderr_noise,stderr_basis,derived``
 (``stderr_basis``: ``noise x sqrt(reduced chi2)``, or ``... (model inadequate)`` when the
 residuals are far above the noise).
 
@@ -40,9 +43,10 @@ then per parameter ``<name>_<unit>``, ``..._stderr``, ``..._status``, then
 ``r_squared,r_squared_contact,reduced_chi2,converged,error``, then the honesty columns of
 :func:`map_columns` (``status`` ok/flagged/failed, ``flags``, ``warnings``,
 ``convergence``, ``r_squared_unweighted``, per segment ``r_squared_<segment>``,
-``reduced_chi2_<segment>``, ``max_residual_<segment>``) and the settings of each curve
-(``profile``, ``radius_m``, ``contact_point``, ``contact_method``, ``baseline``,
-``baseline_region``, ``noise_N``); empty cells where a value is missing) and
+``reduced_chi2_<segment>``, ``max_residual_<segment>``, the derived quantities with their
+standard errors: ``E0_Pa``, ``E0_Pa_stderr``, ..., ``G_inf_Pa``, ``E_inf_Pa``) and the
+settings of each curve (``profile``, ``radius_m``, ``contact_point``, ``contact_method``,
+``baseline``, ``baseline_region``, ``noise_N``); empty cells where a value is missing) and
 ``parameters.json`` (model, counts by status, the settings, the warnings by kind, names
 and units, timings, and the rows of ``map.csv`` as objects, strict JSON). ``map.nc`` holds
 the same columns as variables and the settings as attributes.
@@ -83,10 +87,12 @@ def result_table(result) -> dict:
         out[col] = {"value": _num(v), "stderr": _num(s),
                     "stderr_noise": _num(float(s) / result.stderr_scale),
                     "relative_stderr": _num(rel), "status": st, "fixed": bool(f)}
-    if result.spec.rheology == "standard":
-        g0, g1, eta = (float(result.values[i]) for i in range(3))
-        out["G_inf_Pa"] = {"value": _num(g0 * g1 / (g0 + g1)), "derived": True}
-        out["tau_s"] = {"value": _num(eta / (g0 + g1)), "derived": True}
+    for d in result.derived:
+        v, se = d["value"], d["stderr"]
+        out[f"{d['name']}_{d['unit']}"] = {
+            "value": _num(v), "stderr": _num(se),
+            "relative_stderr": _num(se / abs(v)) if v != 0 and math.isfinite(se) else None,
+            "status": d["status"], "derived": True, "definition": d["definition"]}
     out.update(
         status="ok" if not result.flags else "flagged", adequate=bool(result.adequate),
         flags=dict(result.flags),
@@ -192,14 +198,22 @@ def write_report(result, out_dir) -> dict[str, pathlib.Path]:
     with paths["csv"].open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["parameter", "unit", "value", "stderr", "relative_stderr", "status",
-                    "fixed", "stderr_noise", "stderr_basis"])
+                    "fixed", "stderr_noise", "stderr_basis", "derived"])
         basis = "noise x sqrt(reduced chi2)" + ("" if result.adequate else
                                                 " (model inadequate)")
         for name, unit, col in zip(result.names, result.units, result.columns, strict=True):
             e = table[col]
             w.writerow([name, unit, _cell(e["value"]), _cell(e["stderr"]),
                         _cell(e["relative_stderr"]), e["status"], e["fixed"],
-                        _cell(e["stderr_noise"]), basis if e["stderr"] is not None else ""])
+                        _cell(e["stderr_noise"]), basis if e["stderr"] is not None else "",
+                        False])
+        for d in result.derived:
+            e = table[f"{d['name']}_{d['unit']}"]
+            se = e["stderr"]
+            w.writerow([d["name"], d["unit"], _cell(e["value"]), _cell(se),
+                        _cell(e["relative_stderr"]), e["status"], False,
+                        _cell(None if se is None else se / result.stderr_scale),
+                        basis if se is not None else "", True])
     write_samples(result, paths["samples"])
     return paths
 
@@ -254,6 +268,10 @@ def map_columns(result) -> dict[str, list]:
     for s in segs:
         for k in ("r_squared", "reduced_chi2", "max_residual"):
             cols[f"{k}_{s}"] = []
+    first = next((r for r in result.results if r is not None), None)
+    derived = [f"{d['name']}_{d['unit']}" for d in first.derived] if first is not None else []
+    for k in derived:
+        cols[k], cols[f"{k}_stderr"] = [], []
     for k in ("profile", "radius_m", "contact_point", "contact_method", "baseline",
               "baseline_region", "noise_N"):
         cols[k] = []
@@ -264,6 +282,11 @@ def map_columns(result) -> dict[str, list]:
         cols["warnings"].append(" | ".join(r.warnings) if r is not None else "")
         cols["convergence"].append(r.convergence.get("reason", "") if r is not None else "")
         cols["r_squared_unweighted"].append(r.r_squared_unweighted if r is not None else nan)
+        got = {f"{d['name']}_{d['unit']}": d for d in r.derived} if r is not None else {}
+        for k in derived:
+            d = got.get(k)
+            cols[k].append(d["value"] if d else nan)
+            cols[f"{k}_stderr"].append(d["stderr"] if d else nan)
         by = {q.segment: q for q in r.segments} if r is not None else {}
         for s in segs:
             q = by.get(s)

@@ -62,7 +62,9 @@ class FitResult:
     ``not_converged``; their messages are also in `warnings`), `convergence` (reason and
     advice when the search did not converge), `stderr_scale` ($\\sqrt{\\chi^2_\\mathrm{red}}$,
     the factor the Gauss–Newton errors carry: `stderr` / `stderr_scale` is the error the
-    noise alone would give).
+    noise alone would give), `derived` (Young's moduli $E = 3G$ beside every shear
+    modulus, the relaxed modulus $G_\\infty$ and $E_\\infty$, with standard errors from the
+    covariance: :func:`fitting._uncertainty.derived_quantities`).
     """
 
     names: list[str]
@@ -104,6 +106,7 @@ class FitResult:
     flags: dict = field(default_factory=dict)
     convergence: dict = field(default_factory=dict)
     stderr_scale: float = float("nan")
+    derived: list = field(default_factory=list)
 
     def as_dict(self) -> dict[str, float]:
         """Parameter values by short name."""
@@ -174,6 +177,17 @@ class FitResult:
                 lines.append(f"    {col:<26} {v:12.6g} +/- {s:<10.3g} {rel}")
             else:
                 lines.append(f"    {col:<26} {v:12.6g}   {st}")
+        if self.derived:
+            lines.append("[[derived]] (Young's modulus E = 3G: incompressible, nu = 0.5; "
+                         "errors from the covariance)")
+            for d in self.derived:
+                col = f"{d['name']}_{d['unit']}"
+                if d["status"] == "ok":
+                    v, s = d["value"], d["stderr"]
+                    rel = f"({100 * s / abs(v):.2g} %)" if v != 0 and math.isfinite(s) else ""
+                    lines.append(f"    {col:<26} {v:12.6g} +/- {s:<10.3g} {rel}")
+                else:
+                    lines.append(f"    {col:<26} {d['value']:12.6g}   {d['status']}")
         if self.model_selection:
             lines.append("[[model selection]] (smallest BIC chosen)")
             for m in self.model_selection:

@@ -410,8 +410,8 @@ def test_report_files_and_summary(noisy_fit, tmp_path):
         assert key in table
     rows = paths["csv"].read_text().splitlines()
     assert rows[0] == ("parameter,unit,value,stderr,relative_stderr,status,fixed,"
-                       "stderr_noise,stderr_basis")
-    assert len(rows) == 5
+                       "stderr_noise,stderr_basis,derived")
+    assert len(rows) == 5 + 5  # 4 parameters, 5 derived (E0, E1, G_inf, E_inf, tau)
     samples = paths["samples"].read_text().splitlines()
     assert samples[0] == ("curve,segment,time_s,indentation_m,force_N,model_force_N,residual,"
                           "weight,contact_radius_m")
@@ -570,3 +570,31 @@ def test_no_contact_signal_fails_with_a_reason():
                     0.0)
     pressed = curve.replace(force=f + rise)
     check_contact_signal([pressed], make_spec("history"))
+
+
+def test_young_moduli_and_relaxed_modulus_with_errors(noisy, noisy_fit, tmp_path):
+    # an independent route: the Prony series with one arm is the standard model
+    # reparameterised (G_inf, G_1 = G0 - G_inf, tau); its G_inf is a fitted parameter with
+    # its own Gauss-Newton error, which the delta method on the standard fit must give
+    prony = _fit(noisy, rheology="prony:1")
+    std = {d["name"]: d for d in noisy_fit.derived}
+    other = {d["name"]: d for d in prony.derived}
+    i = prony.names.index("G_inf")
+    assert std["G_inf"]["value"] == pytest.approx(prony.values[i], rel=1e-5)
+    assert std["G_inf"]["stderr"] == pytest.approx(prony.stderr[i], rel=2e-3)
+    assert std["E_inf"]["value"] == pytest.approx(3 * prony.values[i], rel=1e-5)
+    assert std["E_inf"]["stderr"] == pytest.approx(3 * prony.stderr[i], rel=2e-3)
+    # the glass modulus: G0 of the standard model, G_inf + G_1 of the Prony series
+    assert other["E_0"]["value"] == pytest.approx(3 * noisy_fit["G0"], rel=1e-5)
+    assert other["E_0"]["stderr"] == pytest.approx(3 * noisy_fit.stderr[0], rel=2e-3)
+    assert std["E0"]["value"] == 3 * noisy_fit["G0"] and std["E0"]["status"] == "ok"
+    # everywhere: console, JSON, CSV
+    assert "E_inf_Pa" in noisy_fit.summary() and "nu = 0.5" in noisy_fit.summary()
+    paths = fitting.write_report(noisy_fit, tmp_path)
+    table = json.loads(paths["json"].read_text())
+    assert table["E_inf_Pa"]["derived"] is True
+    assert table["E_inf_Pa"]["stderr"] == pytest.approx(std["E_inf"]["stderr"])
+    with paths["csv"].open() as fh:
+        rows = {r["parameter"]: r for r in csv.DictReader(fh)}
+    assert rows["E1"]["derived"] == "True" and float(rows["E1"]["value"]) == pytest.approx(
+        3 * noisy_fit["G1"])

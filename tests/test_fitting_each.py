@@ -141,6 +141,11 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
         assert float(rows[k]["r_squared_retract"]) == pytest.approx(
             float(rows[k]["r_squared"]), rel=1e-12)
         assert float(rows[k]["max_residual_retract"]) > 1.0
+        # Young's moduli beside the shear moduli (E = 3G), with errors
+        assert float(rows[k]["E0_Pa"]) == pytest.approx(3 * float(rows[k]["G0_Pa"]))
+        assert float(rows[k]["E0_Pa_stderr"]) == pytest.approx(
+            3 * float(rows[k]["G0_Pa_stderr"]))
+        assert float(rows[k]["E_inf_Pa_stderr"]) > 0
     table = json.loads(paths["json"].read_text())
     assert table["settings"]["radius_m"] == R and table["settings"]["model"] == "relaxed"
     assert table["ok"] == 3 and table["flagged"] == 0
@@ -151,6 +156,7 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     ds = xr.load_dataset(paths["netcdf"], engine="h5netcdf")
     assert ds.attrs["radius_m"] == R and ds.attrs["contact_point"] == "fixed"
     assert list(ds["status"].values) == [r["status"] for r in rows]
+    assert ds["E_inf_Pa"].values[0] == pytest.approx(float(rows[0]["E_inf_Pa"]))
     # the console: a status beside every median, the warnings once by kind
     text = each.summary()
     assert "3 ok, 0 flagged" in text and "2 failed" in text

@@ -106,20 +106,26 @@ def plot_fit(result, path=None):
     for col, v, s, st in zip(result.columns, result.values, result.stderr, result.status,
                              strict=True):
         lines.append(f"{col:<24} {_fmt(float(v), float(s), st)}")
-    lines.append(f"± : standard error × √χ²_red (√χ²_red = {result.stderr_scale:.3g})")
+    young = [d for d in result.derived if d["name"].startswith("E")]
+    if young:
+        lines.append("E = 3G: " + ", ".join(
+            f"{d['name']} {_fmt(d['value'], d['stderr'], d['status'])}" for d in young))
+    lines.append(f"±: Gauss–Newton error × √χ²_red (= {result.stderr_scale:.3g})"
+                 + ("" if result.adequate else ", not a measurement precision"))
     a_txt.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", family="monospace",
                fontsize=8, transform=a_txt.transAxes)
     alarms = [_FLAG_TEXT[k] for k in result.flags if k in _FLAG_TEXT]
     rest = len(result.warnings) - len(result.flags)
     if rest > 0:
         alarms.append(f"{rest} further warning(s): see parameters.json")
-    if alarms:
-        a_txt.text(0.0, 0.0, "\n".join(alarms), va="bottom", ha="left", fontsize=8.5,
-                   color="tab:red" if result.flags else "k", wrap=True,
-                   transform=a_txt.transAxes)
     src = ", ".join(pathlib.Path(c.source).name for c in result.curves if c.source)
     fig.suptitle(src or "fit", fontsize=10)
-    fig.tight_layout()
+    bottom = 0.0
+    if alarms:  # below the panels, in red when the fit is flagged
+        bottom = 0.025 * len(alarms) + 0.01
+        fig.text(0.01, 0.005, "\n".join(alarms), va="bottom", ha="left", fontsize=9,
+                 color="tab:red" if result.flags else "k")
+    fig.tight_layout(rect=(0.0, bottom, 1.0, 1.0))
     if path is not None:
         fig.savefig(path, dpi=110)
         plt.close(fig)

@@ -487,8 +487,8 @@ def test_inadequate_model_is_flagged_everywhere(inadequate_fit, tmp_path):
     from jaxcontact_cli import plot_fit
 
     fig = plot_fit(res)
-    texts = " ".join(t.get_text() for ax in fig.axes for t in ax.texts)
-    assert "MODEL INADEQUATE" in texts and "√χ²_red" in texts
+    texts = " ".join(t.get_text() for t in [*fig.texts, *(t for a in fig.axes for t in a.texts)])
+    assert "MODEL INADEQUATE" in texts and "√χ²_red" in texts and "E_inf" in texts
 
 
 def test_good_fit_is_ok_and_reports_its_quality(noisy_fit, tmp_path):

@@ -340,6 +340,7 @@ def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatc
         (["--radius", "1e-5", "--bounds", "G0=5:1"], "--bounds"),
         (["--radius", "1e-5", "--initial", "G0=nan"], "--initial"),
         (["--radius", "1e-5", "--starts", "0"], "--starts"),
+        (["--radius", "1e-5", "--max-steps", "0"], "--max-steps"),
         (["--radius", "1e-5", "--out", ""], "--out"),
     ],
 )

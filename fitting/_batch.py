@@ -20,12 +20,15 @@ The result (:class:`FitEachResult`) is a list of :class:`FitResult` and a labell
 :class:`xarray.Dataset` (:meth:`FitEachResult.to_dataset`): one row per curve with the
 map's grid indices and positions when the file has them, each parameter with its standard
 error and status, $R^2$, $R^2$ in contact, reduced $\chi^2$, convergence and the reason of
-a failure.
+a failure; each curve's status (ok, flagged, failed), flags, warnings and fit quality per
+segment, and the settings (:func:`fitting._report.map_columns`, attributes from
+:func:`fitting._report.map_settings`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -48,6 +51,7 @@ from ._optimise import (
     solve_batch,
 )
 from ._prepare import stack_batches
+from ._quality import warn_summary
 from ._result import FitResult
 from ._spec import parameter_info, rheology_name
 from ._start import LocalRounds, local_starts
@@ -133,6 +137,11 @@ class FitEachResult:
         data["reduced_chi2"] = ("curve", per("reduced_chi2").astype(float), {"units": "1"})
         data["converged"] = ("curve", per("converged", False).astype(bool))
         data["error"] = ("curve", np.array([e or "" for e in self.errors], dtype=str))
+        from ._report import map_columns, map_settings
+
+        for key, values in map_columns(self).items():  # status, flags, quality, settings
+            arr = np.asarray(values)
+            data[key] = ("curve", arr.astype(str) if arr.dtype.kind in "OU" else arr)
         coords = {"curve": np.arange(n), "source": ("curve", np.array(self.sources, dtype=str))}
         for key, name, unit in _POSITION_KEYS:
             got = [m.get(key) for m in self.metadata]
@@ -143,7 +152,9 @@ class FitEachResult:
             "model": self.model, "rheology": self.rheology,
             "curves": n, "failed": self.n_failed, "converged": self.n_converged,
             "sign_convention": "indentation positive into the sample, compressive force "
-                               "positive, adhesion negative"})
+                               "positive, adhesion negative",
+            **{k: (json.dumps(v) if isinstance(v, dict | bool) else v)
+               for k, v in map_settings(self).items() if v is not None}})
 
     def grid(self):
         """The dataset arranged on ``(grid_y, grid_x)`` (a force map); `ValueError` if the
@@ -161,28 +172,14 @@ class FitEachResult:
         return ds.set_index(curve=["grid_y", "grid_x"]).unstack("curve")[keep]
 
     def summary(self) -> str:
-        """One line per curve: values, R² in contact, convergence or the failure."""
-        lines = [f"[[fit each]] model={self.model}, rheology={self.rheology}, "
-                 f"{len(self.results)} curve(s), {self.n_converged} converged, "
-                 f"{self.n_failed} failed, {self.timings.get('total', float('nan')):.1f} s"]
-        for i, (r, e) in enumerate(zip(self.results, self.errors, strict=True)):
-            where = _where(self.metadata[i], i)
-            if r is None:
-                lines.append(f"    {where}: failed: {e}")
-                continue
-            vals = ", ".join(f"{n}={v:.4g}" for n, v in zip(self.names, r.values,
-                                                             strict=True))
-            lines.append(f"    {where}: {vals}; R^2 contact {r.r_squared_contact:.4f}"
-                         + ("" if r.converged else "; not converged"))
-        return "\n".join(lines)
+        """Counts, the median of each parameter with its status, the warnings by kind and
+        one line per curve (:func:`fitting._report.each_summary`)."""
+        from ._report import each_summary
+
+        return each_summary(self)
 
     def __str__(self) -> str:
         return self.summary()
-
-
-def _where(meta: Mapping, i: int) -> str:
-    gx, gy = meta.get("grid index x"), meta.get("grid index y")
-    return f"curve {i} (x {gx}, y {gy})" if gx is not None and gy is not None else f"curve {i}"
 
 
 class _Progress:
@@ -330,8 +327,9 @@ def fit_each(
             for j, i in enumerate(part):
                 try:
                     res = _finish(problems[i], [items[i]], opts["profile"], outs[j], optimiser,
-                                  show=lambda _m: None, warn=False,
-                                  timings={}, t_start=time.perf_counter())
+                                  show=lambda _m: None, warn=False,  # summarised below
+                                  timings={}, t_start=time.perf_counter(),
+                                  max_steps=int(max_steps))
                 except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
                     errors[i] = _message(exc)
                     continue
@@ -344,6 +342,7 @@ def fit_each(
             results[i] = None
     info = parameter_info(spec) if spec is not None else []
     timings["total"] = time.perf_counter() - t_start
+    warn_summary(results)  # each curve's warnings are in its result: one warning per kind
     return FitEachResult(
         results=results, errors=errors,
         sources=[c.source for c in items],

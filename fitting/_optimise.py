@@ -61,6 +61,7 @@ from ._least_squares import LBFGS, LevenbergMarquardt, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
 from ._parameters import Parameterisation, make_parameterisation
 from ._prepare import CurveBatch, prepare_curves
+from ._quality import assess, check_contact_signal, r_squared
 from ._result import FitResult, ModelChoice
 from ._spec import (
     ModelSpec,
@@ -227,14 +228,7 @@ class _Progress:
 
 def _r2(model, data, mask) -> float:
     """$R^2$ over the masked samples, each weighted by the measured samples it stands for."""
-    f = np.asarray(data.force)[mask]
-    w = np.asarray(data.weight)[mask]
-    if f.size < 2 or np.sum(w) <= 0:
-        return float("nan")
-    mean = float(np.sum(w * f) / np.sum(w))
-    ss_tot = float(np.sum(w * (f - mean) ** 2))
-    ss_res = float(np.sum(w * (np.asarray(model)[mask] - f) ** 2))
-    return 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
+    return r_squared(model, data.force, data.weight, mask)
 
 
 def _check_options(n_starts, max_steps, optimiser, rtol):
@@ -411,6 +405,7 @@ def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixe
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
+    check_contact_signal(curves, spec)
     data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
                           max_samples=max_samples)
     scales = data_scales(curves, spec, profile)
@@ -475,11 +470,11 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
             break
     timings["optimise"] = time.perf_counter() - t0
     return _finish(pb, curves, opts["profile"], out, opts["optimiser"], show=show,
-                   warn=warn, timings=timings, t_start=t_start)
+                   warn=warn, timings=timings, t_start=t_start, max_steps=opts["max_steps"])
 
 
 def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timings,
-            t_start) -> FitResult:
+            t_start, max_steps=None) -> FitResult:
     """The :class:`FitResult` of problem `pb` from the search's output `out` (`(z, chi2, ok,
     steps[, r, J])` of every start, J with respect to z)."""
     spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
@@ -542,6 +537,10 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
         parameterisation=param, optimiser=optimiser, start_steps=steps_all,
         warnings=msgs, timings=timings,
     )
+    flagged = assess(result, max_steps=max_steps)  # quality per segment, flags, convergence
+    if warn:
+        for m in flagged:
+            warnings.warn(m, ModelValidityWarning, stacklevel=4)
     show(f"done: chi2_red = {result.reduced_chi2:.4g}, R^2 = {result.r_squared:.5f}, "
          f"R^2 in contact = {result.r_squared_contact:.5f}")
     return result

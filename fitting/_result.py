@@ -54,6 +54,17 @@ class FitResult:
     uses it), `fitted_force` (the same with the jump-off resolved inside its sample
     interval, as the residuals use it; :mod:`fitting._objective`), `in_contact` (the samples
     counted by `r_squared_contact`), `parameterisation`, `warnings`, `timings` [s].
+
+    **Honesty** (:mod:`fitting._quality`): `r_squared_unweighted` ($R^2$ over the kept
+    samples, each once), `segments` (a :class:`fitting._quality.SegmentQuality` per
+    fitted segment: $R^2$, reduced $\\chi^2$, largest residual in σ), `flags` (code →
+    message: ``model_inadequate``, ``segment_not_described``, ``contact_outside_data``,
+    ``not_converged``; their messages are also in `warnings`), `convergence` (reason and
+    advice when the search did not converge), `stderr_scale` ($\\sqrt{\\chi^2_\\mathrm{red}}$,
+    the factor the Gauss–Newton errors carry: `stderr` / `stderr_scale` is the error the
+    noise alone would give), `derived` (Young's moduli $E = 3G$ beside every shear
+    modulus, the relaxed modulus $G_\\infty$ and $E_\\infty$, with standard errors from the
+    covariance: :func:`fitting._uncertainty.derived_quantities`).
     """
 
     names: list[str]
@@ -90,6 +101,12 @@ class FitResult:
     model_selection: list[ModelChoice] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    r_squared_unweighted: float = float("nan")
+    segments: list = field(default_factory=list)
+    flags: dict = field(default_factory=dict)
+    convergence: dict = field(default_factory=dict)
+    stderr_scale: float = float("nan")
+    derived: list = field(default_factory=list)
 
     def as_dict(self) -> dict[str, float]:
         """Parameter values by short name."""
@@ -108,23 +125,51 @@ class FitResult:
                 / np.asarray(self.data.noise))
 
     @property
+    def adequate(self) -> bool:
+        """The residuals are near the noise (no ``model_inadequate`` or
+        ``segment_not_described`` flag)."""
+        return not ({"model_inadequate", "segment_not_described"} & set(self.flags))
+
+    @property
+    def stderr_basis(self) -> str:
+        """What `stderr` is, in words (the JSON's and the console's statement)."""
+        return stderr_basis(self.stderr_scale, self.adequate)
+
+    @property
     def rheology(self) -> str:
         """"standard" or "prony:N"."""
         return rheology_name(self.spec)
 
     def summary(self) -> str:
-        """A short report: model, quality, one line per parameter, warnings."""
+        """A short report: model, convergence, quality (overall and per segment), one line
+        per parameter, warnings."""
+        conv = "True" if self.converged else \
+            f"False: {self.convergence.get('reason', 'did not converge')}"
+        status = "ok" if self.converged and self.adequate and not self.flags else \
+            "FLAGGED (" + ", ".join(self.flags) + ")"
         lines = [f"[[fit]] model={self.spec.model}, rheology={self.rheology}, "
                  f"{len(self.curves)} curve(s), {self.n_data} samples "
                  f"({self.data.n_samples} kept), "
                  f"{self.n_free} free parameter(s), optimiser={self.optimiser}",
-                 f"    converged          {self.converged}",
+                 f"    status             {status}",
+                 f"    converged          {conv}",
                  f"    chi2               {self.chi2:.6g}",
-                 f"    reduced chi2       {self.reduced_chi2:.6g}",
-                 f"    R^2 (all)          {self.r_squared:.5f}",
-                 f"    R^2 (in contact)   {self.r_squared_contact:.5f}",
-                 f"    AIC, BIC           {self.aic:.6g}, {self.bic:.6g}",
-                 "[[parameters]]"]
+                 f"    reduced chi2       {self.reduced_chi2:.6g}"
+                 + ("  (model inadequate: residuals far above the noise)"
+                    if "model_inadequate" in self.flags else ""),
+                 f"    R^2 (all)          {self.r_squared:.5f} (each kept sample weighted by "
+                 f"the measured samples it stands for); unweighted "
+                 f"{self.r_squared_unweighted:.5f}",
+                 f"    R^2 (in contact)   {self.r_squared_contact:.5f} (weighted)",
+                 f"    AIC, BIC           {self.aic:.6g}, {self.bic:.6g}"]
+        if self.segments:
+            lines.append("[[segments]]        R^2 (weighted, unweighted)  reduced chi2  "
+                         "max |residual| [sigma]")
+            for q in self.segments:
+                mark = "" if q.described else "  <- not described"
+                lines.append(f"    {q.segment:<15} {q.r_squared:9.4f} {q.r_squared_unweighted:9.4f}"
+                             f"   {q.reduced_chi2:12.4g}  {q.max_residual:10.3g}{mark}")
+        lines.append(f"[[parameters]] (+/-: {self.stderr_basis})")
         for col, v, s, st in zip(self.columns, self.values, self.stderr, self.status,
                                  strict=True):
             if st == "ok":
@@ -132,6 +177,17 @@ class FitResult:
                 lines.append(f"    {col:<26} {v:12.6g} +/- {s:<10.3g} {rel}")
             else:
                 lines.append(f"    {col:<26} {v:12.6g}   {st}")
+        if self.derived:
+            lines.append("[[derived]] (Young's modulus E = 3G: incompressible, nu = 0.5; "
+                         "errors from the covariance)")
+            for d in self.derived:
+                col = f"{d['name']}_{d['unit']}"
+                if d["status"] == "ok":
+                    v, s = d["value"], d["stderr"]
+                    rel = f"({100 * s / abs(v):.2g} %)" if v != 0 and math.isfinite(s) else ""
+                    lines.append(f"    {col:<26} {v:12.6g} +/- {s:<10.3g} {rel}")
+                else:
+                    lines.append(f"    {col:<26} {d['value']:12.6g}   {d['status']}")
         if self.model_selection:
             lines.append("[[model selection]] (smallest BIC chosen)")
             for m in self.model_selection:
@@ -160,3 +216,13 @@ class FitResult:
         vals = ", ".join(f"{n}={v:.4g}" for n, v in zip(self.names, self.values, strict=True))
         return (f"FitResult({self.spec.model}, {self.rheology}: {vals}; chi2={self.chi2:.4g}, "
                 f"converged={self.converged})")
+
+
+def stderr_basis(scale: float, adequate: bool) -> str:
+    """What a fit's standard errors are (`scale`: $\\sqrt{\\chi^2_\\mathrm{red}}$)."""
+    text = (f"Gauss-Newton standard error scaled by sqrt(reduced chi2) = {scale:.3g} "
+            "(lmfit's scale_covar)")
+    if not adequate:
+        text += ("; the model does not describe the data, so it measures how tightly the "
+                 "misfit holds the parameters, not the measurement precision")
+    return text

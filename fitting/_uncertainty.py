@@ -40,7 +40,8 @@ import warnings
 
 import numpy as np
 
-__all__ = ["IdentifiabilityWarning", "ModelValidityWarning", "Uncertainty", "gauss_newton"]
+__all__ = ["IdentifiabilityWarning", "ModelValidityWarning", "Uncertainty", "gauss_newton",
+           "derived_quantities", "POISSON"]
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -184,3 +185,69 @@ def gauss_newton(param, u, r, J, names, *, n_data: int, weights=None,
 def _bound_value(param, i, which) -> float:
     lim = float(np.asarray(param.lower if which == "lower" else param.upper)[i])
     return math.exp(lim) if param.log[i] else lim * float(np.asarray(param.scale)[i])
+
+
+#: Poisson's ratio of the model's half-space (incompressible): $E = 2(1+\nu)G = 3G$.
+POISSON = 0.5
+
+
+def derived_quantities(spec, p, covariance, status) -> list[dict]:
+    r"""Quantities derived from the natural parameters `p` with their standard errors by
+    the delta method ($\sigma_f^2 = \nabla f^\top C\,\nabla f$ over the free parameters,
+    $\nabla f$ by forward-mode differentiation; a fixed parameter contributes nothing).
+
+    Young's moduli $E = 2(1+\nu)G = 3G$ ($\nu$ = :data:`POISSON`, the model's
+    incompressible half-space) beside every shear modulus, and the relaxed modulus
+    $G_\infty$ (the rheology's ``relaxed_modulus``; the one modulus curves without a hold
+    determine) with $E_\infty$. Standard model: ``E0``, ``E1``, ``G_inf``, ``E_inf``, ``tau``
+    ($\eta_1/(G_0+G_1)$, the relaxation time at fixed strain). Prony series: ``G_0``
+    (glass modulus $G_\infty + \sum G_k$), ``E_0``, ``E_inf``, ``E_k``.
+
+    **Returns:** one dict per quantity: ``name``, ``unit``, ``value``, ``stderr`` (nan when
+    a parameter it depends on is not determined or at a bound), ``status`` ("ok" or "not
+    determined"), ``definition``.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from ._spec import build_rheology, parameter_info
+
+    names = [n for n, _, _ in parameter_info(spec)]
+    if spec.rheology == "standard":
+        rows = [("E0", "Pa", "3 G0"), ("E1", "Pa", "3 G1"),
+                ("G_inf", "Pa", "G0 G1 / (G0 + G1), relaxed shear modulus"),
+                ("E_inf", "Pa", "3 G_inf"), ("tau", "s", "eta1 / (G0 + G1)")]
+
+        def fn(q):
+            g_inf = build_rheology(spec, q).relaxed_modulus
+            return jnp.stack([3 * q[0], 3 * q[1], g_inf, 3 * g_inf, q[2] / (q[0] + q[1])])
+    else:
+        n = spec.arms
+        rows = [("G_0", "Pa", "G_inf + sum G_k, glass shear modulus"),
+                ("E_0", "Pa", "3 G_0"), ("E_inf", "Pa", "3 G_inf")]
+        rows += [(f"E_{k + 1}", "Pa", f"3 G_{k + 1}") for k in range(n)]
+
+        def fn(q):
+            r = build_rheology(spec, q)
+            return jnp.concatenate([jnp.stack([r.glass_modulus, 3 * r.glass_modulus,
+                                               3 * r.relaxed_modulus]), 3 * q[1:1 + n]])
+    p = jnp.asarray(p, dtype=float)
+    values = np.asarray(fn(p))
+    grad = np.asarray(jax.jacfwd(fn)(p))
+    cov = np.asarray(covariance, dtype=float)
+    out = []
+    for i, (name, unit, definition) in enumerate(rows):
+        g = grad[i]
+        used = [j for j in range(len(names)) if g[j] != 0 and status[j] != "fixed"]
+        ok = all(status[j] == "ok" for j in used)
+        if ok and used:
+            c = cov[np.ix_(used, used)]
+            var = float(g[used] @ c @ g[used]) if np.all(np.isfinite(c)) else math.nan
+            se = math.sqrt(var) if var >= 0 else math.nan
+        else:
+            se = 0.0 if ok else math.nan  # every parameter it depends on fixed: exact
+        out.append({"name": name, "unit": unit, "value": float(values[i]), "stderr": se,
+                    "status": "ok" if ok and math.isfinite(se) else "not determined",
+                    "definition": definition + (" (E = 2(1 + nu) G, nu = 0.5)"
+                                                if name.startswith("E") else "")})
+    return out

@@ -15,7 +15,11 @@ Order of work: every argument and input file is checked, the output folder is ch
 runs, and the report (``parameters.json``, ``parameters.csv``, ``fit.csv``, ``fit.png``)
 is written into a temporary folder beside ``DIR`` and renamed into place: a failed or
 interrupted run leaves no file and no stale file. A fit that did not converge is written
-(marked ``"converged": false``) and exits with status 1. JAX's persistent compilation
+(its best point, marked ``"converged": false`` with the reason and what to try) and exits
+with status :data:`EXIT_NOT_CONVERGED` (3); so does a map in which some curve did not
+converge or failed (the others are written; see ``map.csv``, columns ``status``,
+``convergence`` and ``error``). Fits whose residuals are far above the noise are written
+and flagged (``"status": "flagged"``, ``flags``), exit 0. JAX's persistent compilation
 cache (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``; none when
 ``$JAXCONTACT_NO_CACHE`` is set) spares a second run the
 compile.
@@ -36,12 +40,29 @@ from ._common import (
     parse_profile,
 )
 
-__all__ = ["add_parser", "add_fit_arguments", "load_inputs", "run"]
+__all__ = ["add_parser", "add_fit_arguments", "load_inputs", "run", "EXIT_NOT_CONVERGED"]
+
+#: Exit status of a fit that was written but did not converge (or a map with such curves
+#: or failed curves).
+EXIT_NOT_CONVERGED = 3
+
+EXIT_STATUS = """exit status:
+  0  the fit converged and was written (a fit flagged as not describing the data, e.g.
+     residuals far above the noise, is written with "status": "flagged" and exits 0)
+  2  bad arguments or input data, or no curve could be fitted: nothing written
+  3  written, but the fit did not converge (its best point, "converged": false, the
+     reason and what to try in parameters.json), or in a map some curves did not
+     converge or failed (map.csv: status, convergence, error)
+  1  an unexpected error
+"""
 
 
 def add_parser(sub, common) -> None:
+    import argparse
+
     p = sub.add_parser("fit", parents=[common],
-                       help="identify the rheology and the work of adhesion from force curves")
+                       help="identify the rheology and the work of adhesion from force curves",
+                       epilog=EXIT_STATUS, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_fit_arguments(p)
     p.set_defaults(func=run)
 
@@ -102,6 +123,10 @@ def add_fit_arguments(parser):
     parser.add_argument("--starts", type=int, default=None, metavar="N",
                         help="number of starts of the global search (default: the library's, "
                              "see fitting.fit)")
+    parser.add_argument("--max-steps", type=int, default=None, metavar="N",
+                        help="iterations per start of the search (default: the library's, "
+                             "200); a fit that stops at this limit is written with "
+                             "\"converged\": false and exit status 3")
     parser.add_argument("--max-samples", type=int, default=None, metavar="N",
                         help="resample each segment to at most N samples (default: the "
                              "library's)")
@@ -207,6 +232,8 @@ def _check(args):
         raise UsageError(f"argument --chunk: must be an integer >= 1; got {args.chunk}")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
+    if args.max_steps is not None and args.max_steps < 1:
+        raise UsageError(f"argument --max-steps: must be an integer >= 1; got {args.max_steps}")
     if args.max_samples is not None and args.max_samples < 2:
         raise UsageError(f"argument --max-samples: must be an integer >= 2; got "
                          f"{args.max_samples}")
@@ -244,6 +271,8 @@ def run(args) -> int:
                    cells=args.cells, progress=not args.quiet, force_offset=args.force_offset)
     if args.starts is not None:
         options["n_starts"] = args.starts
+    if args.max_steps is not None:
+        options["max_steps"] = args.max_steps
     if args.contact_point is not None:
         options["contact_point"] = "fit" if args.contact_point == "fit" else "fixed"
     if radius is not None:
@@ -256,10 +285,11 @@ def run(args) -> int:
         args, folder, lambda: fitting.fit(curves, **options), write=fitting.write_report,
         figure=("fit.png", "plot_fit"))
     if not result.converged:
-        reason = "the optimiser stopped before convergence (max steps or no further decrease)"
-        print(f"jaxcontact fit: error: the fit did not converge ({reason}); the report in "
-              f"{out} is marked \"converged\": false", file=sys.stderr)
-        return 1
+        conv = result.convergence
+        print(f"jaxcontact fit: error: the fit did not converge: {conv.get('reason')}; its "
+              f"best point is written to {out}, marked \"converged\": false; try: "
+              + "; ".join(conv.get("advice", [])), file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0
 
 
@@ -298,8 +328,9 @@ def _fit_and_write(args, folder, fit, *, write, figure, check=None):
 
 def _run_each(args, folder, curves, options) -> int:
     """``--each``: one fit per curve (:func:`fitting.fit_each`); map.nc, map.csv,
-    parameters.json and map.png. Exit status 1 when a curve failed or did not converge
-    (the report names them), 2 when none could be fitted (nothing written)."""
+    parameters.json and map.png. Exit status :data:`EXIT_NOT_CONVERGED` when a curve failed
+    or did not converge (the report names them; a curve that did not converge keeps its
+    best point, flagged), 2 when none could be fitted (nothing written)."""
     import fitting
 
     if args.rheology == "auto":
@@ -317,7 +348,8 @@ def _run_each(args, folder, curves, options) -> int:
     bad = len(curves) - result.n_converged
     if bad:
         print(f"jaxcontact fit: error: {result.n_failed} curve(s) failed and "
-              f"{bad - result.n_failed} did not converge (see {out / 'map.csv'}, columns "
-              "error and converged)", file=sys.stderr)
-        return 1
+              f"{bad - result.n_failed} did not converge (kept with their best point, "
+              f"flagged; see {out / 'map.csv'}, columns status, convergence and error)",
+              file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0

@@ -1,8 +1,10 @@
 """The ``jaxcontact`` command: parser, dispatch, errors and interruption.
 
-Exit status: 0 success; 1 the work failed (a fit that did not converge, a simulation that
-ended in an error state, an unexpected error); 2 bad arguments or input data (the message
-names the option or the file); 130/143 interrupted by Ctrl-C/SIGTERM. Every error is one
+Exit status: 0 success; 1 the work failed (a simulation that ended in an error state, an
+unexpected error); 2 bad arguments or input data (the message names the option or the
+file); 3 a fit written but not converged (its best point, ``"converged": false``), or a map
+with curves that did not converge or failed (``jaxcontact_cli._fit.EXIT_NOT_CONVERGED``);
+130/143 interrupted by Ctrl-C/SIGTERM. Every error is one
 line on stderr; ``--debug`` adds the traceback. Progress and logs go to stderr; with
 ``--json`` stdout carries only the JSON document.
 

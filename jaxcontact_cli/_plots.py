@@ -12,6 +12,17 @@ __all__ = ["plot_fit", "plot_map"]
 _SEGMENT_COLOURS = {"approach": "tab:blue", "hold": "tab:orange", "retract": "tab:green"}
 _SEGMENTS = ("approach", "hold", "retract")
 
+#: One line on the figure per flag of a fit (:mod:`fitting._quality`).
+_FLAG_TEXT = {
+    "model_inadequate": "MODEL INADEQUATE: residuals far above the noise; the ± are not "
+                        "a measurement precision",
+    "segment_not_described": "a fitted segment is NOT DESCRIBED by the model (see the "
+                             "segment lines)",
+    "contact_outside_data": "the fitted contact lies outside the data: the start of contact "
+                            "is not described",
+    "not_converged": "NOT CONVERGED: the best point found is shown",
+}
+
 
 def _fmt(v, s, status):
     if status == "ok" and math.isfinite(s):
@@ -26,7 +37,9 @@ def plot_fit(result, path=None):
 
     Four panels: force against time (the hold shows), force against indentation, the
     residuals (model − data)/σ against time (σ: the curve's noise), and the fitted values
-    with their standard errors and the fit quality. Colours mark the segments (approach,
+    with their standard errors (and what they are) and the fit quality, overall and per
+    segment, with the fit's flags in red (model inadequate, a segment not described, the
+    contact outside the data, not converged). Colours mark the segments (approach,
     hold, retract), the black line is the model; the dashed vertical line is the detected
     contact point (indentation 0), the dotted one the fitted contact point (when the
     contact offset was fitted). Returns the matplotlib figure.
@@ -82,18 +95,37 @@ def plot_fit(result, path=None):
     a_r.set_title(f"residuals in units of the noise σ = {noise} pN", fontsize=9)
     a_txt.axis("off")
     lines = [f"{result.spec.model} model, {result.rheology}",
-             f"R² = {result.r_squared:.4f} (all), {result.r_squared_contact:.4f} (in contact)",
-             f"χ²_red = {result.reduced_chi2:.3g}, converged: {result.converged}", ""]
+             f"R² = {result.r_squared:.4f} (all, sample-weighted; unweighted "
+             f"{result.r_squared_unweighted:.4f}), {result.r_squared_contact:.4f} (in contact)",
+             f"χ²_red = {result.reduced_chi2:.3g}, converged: {result.converged}"]
+    for q in result.segments:
+        lines.append(f"  {q.segment:<9} R² {q.r_squared:7.3f}  χ²_red {q.reduced_chi2:9.3g}"
+                     f"  max|r| {q.max_residual:7.3g} σ" + ("" if q.described else
+                                                          "  NOT DESCRIBED"))
+    lines.append("")
     for col, v, s, st in zip(result.columns, result.values, result.stderr, result.status,
                              strict=True):
         lines.append(f"{col:<24} {_fmt(float(v), float(s), st)}")
-    if result.warnings:
-        lines += ["", f"{len(result.warnings)} warning(s): see parameters.json"]
+    young = [d for d in result.derived if d["name"].startswith("E")]
+    if young:
+        lines.append("E = 3G: " + ", ".join(
+            f"{d['name']} {_fmt(d['value'], d['stderr'], d['status'])}" for d in young))
+    lines.append(f"±: Gauss–Newton error × √χ²_red (= {result.stderr_scale:.3g})"
+                 + ("" if result.adequate else ", not a measurement precision"))
     a_txt.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", family="monospace",
-               fontsize=8.5, transform=a_txt.transAxes)
+               fontsize=8, transform=a_txt.transAxes)
+    alarms = [_FLAG_TEXT[k] for k in result.flags if k in _FLAG_TEXT]
+    rest = len(result.warnings) - len(result.flags)
+    if rest > 0:
+        alarms.append(f"{rest} further warning(s): see parameters.json")
     src = ", ".join(pathlib.Path(c.source).name for c in result.curves if c.source)
     fig.suptitle(src or "fit", fontsize=10)
-    fig.tight_layout()
+    bottom = 0.0
+    if alarms:  # below the panels, in red when the fit is flagged
+        bottom = 0.025 * len(alarms) + 0.01
+        fig.text(0.01, 0.005, "\n".join(alarms), va="bottom", ha="left", fontsize=9,
+                 color="tab:red" if result.flags else "k")
+    fig.tight_layout(rect=(0.0, bottom, 1.0, 1.0))
     if path is not None:
         fig.savefig(path, dpi=110)
         plt.close(fig)
@@ -107,7 +139,8 @@ def plot_map(result, path=None):
     grid indices, one per grid point) is drawn as images on the grid (``grid_x`` to the
     right, ``grid_y`` up; grey: no curve at that point, or a failed fit, marked ×);
     other batches as values against the curve index with their standard errors (failed
-    curves marked × on the axis). Values at a bound or not determined are drawn hollow.
+    curves marked × on the axis). Values at a bound or not determined are drawn hollow;
+    flagged curves (not converged, residuals far above the noise, ...) get a red triangle.
     Returns the matplotlib figure.
     """
     import matplotlib
@@ -131,6 +164,8 @@ def plot_map(result, path=None):
     nrow = -(-len(panels) // ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.6 * nrow), squeeze=False)
     failed = np.array([e is not None for e in result.errors])
+    flagged = np.array([r is not None and e is None and bool(r.flags)
+                        for r, e in zip(result.results, result.errors, strict=True)])
     for k, (title, j) in enumerate(panels):
         ax = axes[k // ncol, k % ncol]
         values = r2 if j is None else vals[:, j]
@@ -154,13 +189,14 @@ def plot_map(result, path=None):
             odd = np.array([j is not None and st[j] not in ("ok", "fixed", "failed")
                             for st in status])
             for mask, mark, label in ((failed, "x", "failed"),
-                                      (odd, "o", "at a bound / not determined")):
+                                      (odd, "o", "at a bound / not determined"),
+                                      (flagged, "^", "flagged (map.csv: flags)")):
                 if mask.any():
                     ax.plot(gx[mask], gy[mask], mark, mfc="none", color="tab:red", ms=8,
                             ls="none", label=label)
             ax.set_xlabel("grid x")
             ax.set_ylabel("grid y")
-            if failed.any() or odd.any():
+            if failed.any() or odd.any() or flagged.any():
                 ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18),
                           ncol=2, frameon=False)
         else:
@@ -174,17 +210,20 @@ def plot_map(result, path=None):
                     label="at a bound / not determined")
             ax.plot(idx[failed], np.zeros(failed.sum()), "x", color="tab:red",
                     label="failed")
+            ax.plot(idx[flagged], values[flagged], "^", mfc="none", color="tab:red", ms=9,
+                    label="flagged (map.csv: flags)")
             if j is not None and np.all(values[np.isfinite(values)] > 0) and \
                     result.units[j] not in ("m", "N"):
                 ax.set_yscale("log")
             ax.set_xlabel("curve")
-            if rest.any() or failed.any():
+            if rest.any() or failed.any() or flagged.any():
                 ax.legend(fontsize=7)
         ax.set_title(title, fontsize=10)
     for k in range(len(panels), nrow * ncol):
         axes[k // ncol, k % ncol].axis("off")
     fig.suptitle(f"{result.model} model, {result.rheology}: {len(result.results)} curves, "
-                 f"{result.n_converged} converged, {result.n_failed} failed", fontsize=10)
+                 f"{result.n_converged} converged, {int(flagged.sum())} flagged, "
+                 f"{result.n_failed} failed", fontsize=10)
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=110)

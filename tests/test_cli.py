@@ -340,6 +340,7 @@ def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatc
         (["--radius", "1e-5", "--bounds", "G0=5:1"], "--bounds"),
         (["--radius", "1e-5", "--initial", "G0=nan"], "--initial"),
         (["--radius", "1e-5", "--starts", "0"], "--starts"),
+        (["--radius", "1e-5", "--max-steps", "0"], "--max-steps"),
         (["--radius", "1e-5", "--out", ""], "--out"),
     ],
 )
@@ -482,3 +483,55 @@ def test_interrupt_leaves_no_files(tmp_path):
         assert "interrupted" in err and "Traceback" not in err
         assert not out.exists()
         assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_fit_that_does_not_converge_writes_its_best_point(tmp_path, capsys):
+    # one iteration per start: no start can converge; the best point is written with the
+    # reason and what to try, and the exit status is the documented 3
+    from jaxcontact_cli._fit import EXIT_NOT_CONVERGED
+
+    files = _fit_csvs(tmp_path, n=40)
+    out = tmp_path / "result"
+    rc = main(["fit", *files, "--radius", "10e-6", "--model", "relaxed", "--out", str(out),
+               "--quiet", "--no-figure", "--starts", "2", "--max-steps", "1"])
+    err = capsys.readouterr().err
+    assert rc == EXIT_NOT_CONVERGED == 3, err
+    assert "did not converge" in err and "--max-steps 2" in err
+    table = json.loads((out / "parameters.json").read_text())
+    assert table["converged"] is False and table["status"] == "flagged"
+    conv = table["convergence"]
+    assert "step limit (max_steps 1)" in conv["reason"] and conv["max_steps"] == 1
+    assert any("max_steps=2" in a for a in conv["advice"])
+    assert "not_converged" in table["flags"] and table["G0_Pa"]["value"] > 0
+    # a map keeps such curves as flagged, not failed
+    out = tmp_path / "map"
+    rc = main(["fit", *files[:2], "--each", "--radius", "10e-6", "--model", "relaxed",
+               "--out", str(out), "--quiet", "--no-figure", "--starts", "2",
+               "--max-steps", "1", "--chunk", "2"])
+    assert rc == 3, capsys.readouterr().err
+    with (out / "map.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["status"] for r in rows] == ["flagged", "flagged"]
+    assert all("not_converged" in r["flags"] and "step limit" in r["convergence"]
+               and float(r["G0_Pa"]) > 0 and r["error"] == "" for r in rows)
+
+
+def test_fit_help_documents_the_exit_status(capsys):
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    text = capsys.readouterr().out
+    assert "exit status" in text and "3  written, but the fit did not converge" in text
+    assert "--max-steps" in text
+
+
+def test_curves_without_contact_fail_with_the_reason(tmp_path, capsys):
+    # the QI curves read with --contact-point none: the approach is noise, the retract a
+    # drag offset; they used to be "4 converged" with R² 0.33-0.42
+    pytest.importorskip("afmformats")
+    out = tmp_path / "q"
+    rc = main(["fit", "tests/data/qi-2x2-2020.02.07.jpk-qi-data", "--radius", "10e-6",
+               "--contact-point", "none", "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("no contact in the data") == 4, err
+    assert "on the approach and hold the force never stays above 5 sigma" in err
+    assert not out.exists()

@@ -4,6 +4,7 @@ The synthetic curves come from `jc.retract` (the forward model) with known param
 every fit here uses 3 × 60 samples and 4 starts, so one compilation serves most tests.
 """
 
+import csv
 import json
 import types
 import warnings
@@ -408,8 +409,9 @@ def test_report_files_and_summary(noisy_fit, tmp_path):
                 "G_inf_Pa", "tau_s", "start_losses", "model_selection"):
         assert key in table
     rows = paths["csv"].read_text().splitlines()
-    assert rows[0] == "parameter,unit,value,stderr,relative_stderr,status,fixed"
-    assert len(rows) == 5
+    assert rows[0] == ("parameter,unit,value,stderr,relative_stderr,status,fixed,"
+                       "stderr_noise,stderr_basis,derived")
+    assert len(rows) == 5 + 5  # 4 parameters, 5 derived (E0, E1, G_inf, E_inf, tau)
     samples = paths["samples"].read_text().splitlines()
     assert samples[0] == ("curve,segment,time_s,indentation_m,force_N,model_force_N,residual,"
                           "weight,contact_radius_m")
@@ -458,3 +460,156 @@ def test_validity_warnings():
     with pytest.warns(fitting.ModelValidityWarning, match="an approach and no hold"):
         res = fitting.fit([approach], radius=R, n_starts=STARTS, progress=False)
     assert any("1 curve(s) have an approach and no hold" in w for w in res.warnings)
+
+
+# --------------------------------------------------------------------------------------
+# honesty: model inadequacy, the meaning of the error bars, the contact point, no contact
+# --------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def inadequate_fit():
+    # the curves with a systematic distortion the model cannot follow (10 % of the force
+    # range, two periods) over 0.2 % noise: residuals far above the noise
+    out = []
+    for k, c in enumerate(_curves(noise=0.002, seed=3)):
+        ripple = 0.1 * np.ptp(c.force) * np.sin(4 * np.pi * np.linspace(0, 1, len(c)) + k)
+        out.append(c.replace(force=c.force + ripple))
+    return _fit(out)
+
+
+def test_inadequate_model_is_flagged_everywhere(inadequate_fit, tmp_path):
+    res = inadequate_fit
+    paths = fitting.write_report(res, tmp_path)
+    # the reduced chi2 from fit.csv alone (sum of weight * residual^2 over m - k)
+    with paths["samples"].open() as fh:
+        rows = list(csv.DictReader(fh))
+    chi2 = sum(float(r["weight"]) * float(r["residual"]) ** 2 for r in rows)
+    red = chi2 / (len(rows) - res.n_free)
+    assert red > 25 and red == pytest.approx(res.reduced_chi2, rel=1e-9)
+    assert "model_inadequate" in res.flags and not res.adequate
+    assert "model inadequate" in res.summary() and "not the measurement precision" in \
+        res.summary()
+    table = json.loads(paths["json"].read_text())
+    assert table["status"] == "flagged" and table["adequate"] is False
+    assert "model_inadequate" in table["flags"]
+    assert "not the measurement precision" in table["stderr_basis"]
+    assert table["stderr_scale"] == pytest.approx(np.sqrt(red), rel=1e-9)
+    with paths["csv"].open() as fh:
+        prow = list(csv.DictReader(fh))
+    assert all(r["stderr_basis"] == "noise x sqrt(reduced chi2) (model inadequate)"
+               for r in prow)
+    # the figure says so in red
+    from jaxcontact_cli import plot_fit
+
+    fig = plot_fit(res)
+    texts = " ".join(t.get_text() for t in [*fig.texts, *(t for a in fig.axes for t in a.texts)])
+    assert "MODEL INADEQUATE" in texts and "√χ²_red" in texts and "E_inf" in texts
+
+
+def test_good_fit_is_ok_and_reports_its_quality(noisy_fit, tmp_path):
+    res = noisy_fit
+    assert res.flags == {} and res.adequate and res.convergence["reason"] == "converged"
+    (seg,) = res.segments  # the relaxed model fits the retract only
+    assert seg.segment == "retract" and seg.described
+    assert seg.n_measured == res.n_data == 180
+    # without subsampling every weight is 1: weighted and unweighted R² agree, and the
+    # segment's reduced chi2 is chi2 per sample
+    assert res.r_squared_unweighted == pytest.approx(res.r_squared, rel=1e-12)
+    assert seg.reduced_chi2 == pytest.approx(res.chi2 / 180, rel=1e-9)
+    table = json.loads(fitting.write_report(res, tmp_path)["json"].read_text())
+    assert table["status"] == "ok" and table["segments"][0]["segment"] == "retract"
+    assert "weighted" in table["r_squared_weighting"]
+    assert "weighted by the measured samples" in res.summary()
+
+
+def test_stderr_is_scaled_by_the_reduced_chi2_lmfit_style(noisy_fit):
+    # lmfit's scale_covar: with the noise sigma wrong by a factor c (residuals and Jacobian
+    # scaled by 1/c) the standard errors do not change, the reduced chi2 does by 1/c²;
+    # the noise-only error (stderr / sqrt(reduced chi2)) scales with c
+    from fitting._uncertainty import gauss_newton
+
+    param = noisy_fit.parameterisation
+    u = param.to_internal(noisy_fit.values)
+    rng = np.random.default_rng(5)
+    J = rng.standard_normal((180, 4))
+    r = 3.0 * rng.standard_normal(180)
+    one = gauss_newton(param, u, r, J, noisy_fit.names, n_data=180, warn=False)
+    c = 10.0
+    other = gauss_newton(param, u, r / c, J / c, noisy_fit.names, n_data=180, warn=False)
+    np.testing.assert_allclose(other.stderr, one.stderr, rtol=1e-10)
+    assert other.reduced_chi2 == pytest.approx(one.reduced_chi2 / c**2, rel=1e-12)
+    noise_only = np.sqrt(np.diag(np.linalg.inv(J.T @ J))) * np.abs(param.dnatural(u))
+    np.testing.assert_allclose(one.stderr / np.sqrt(one.reduced_chi2), noise_only, rtol=1e-8)
+
+
+def test_contact_outside_the_data_is_flagged():
+    from fitting._quality import contact_outside
+
+    # an approach from -0.3 µm to 1 µm; the data show no force before the contact at 0
+    d = np.linspace(-0.3e-6, 1e-6, 50)[None, :]
+    f = np.where(d > 0, 1.0 * d, 0.0)  # 1 N/m
+    noise = np.full_like(d, 1e-10)
+    valid = np.ones_like(d)
+    seg = np.zeros(d.shape, int)
+    for delta, expect in ((0.5e-6, "before the first"), (-2e-6, "never touches"),
+                          (0.1e-6, None)):
+        model = np.where(d + delta > 0, d + delta, 0.0)
+        msgs = contact_outside(d, f, model, noise, valid, seg, (d + delta > 0) * 1e-6, delta)
+        if expect is None:
+            assert msgs == []
+        else:
+            assert len(msgs) == 1 and expect in msgs[0], msgs
+    # the first sample 0.2 µm inside the model's contact: 200 nN against 0 (2000 sigma)
+    model = d + 0.5e-6
+    (msg,) = contact_outside(d, f, model, noise, valid, seg, np.ones_like(d), 0.5e-6)
+    assert "lies 2e-07 m before" in msg and "2000 sigma" in msg
+
+
+def test_no_contact_signal_fails_with_a_reason():
+    from fitting._quality import check_contact_signal
+
+    rng = np.random.default_rng(0)
+    n = 200
+    t = np.linspace(0, 1, 2 * n)
+    sigma = 1e-11
+    noise = sigma * rng.standard_normal(2 * n)
+    # an approach with noise only, a retract with a constant drag offset (the QI curves)
+    f = noise + np.r_[np.zeros(n), np.full(n, -14 * sigma)]
+    d = np.r_[np.linspace(0, 1e-6, n), np.linspace(1e-6, 0, n)]
+    curve = fitting.Curve(time=t, displacement=d, force=f, segment=np.repeat([0, 1], n),
+                          segment_names=("approach", "retract"), source="qi")
+    with pytest.raises(ValueError, match=r"curve 0 \(qi\): no contact in the data"):
+        check_contact_signal([curve], make_spec("history"))
+    # the same curve pressed into the sample: a force rise of 20 sigma at the end
+    rise = np.where((np.arange(2 * n) < n) & (d > 0.5e-6), 40 * sigma * (d - 0.5e-6) / 0.5e-6,
+                    0.0)
+    pressed = curve.replace(force=f + rise)
+    check_contact_signal([pressed], make_spec("history"))
+
+
+def test_young_moduli_and_relaxed_modulus_with_errors(noisy, noisy_fit, tmp_path):
+    # an independent route: the Prony series with one arm is the standard model
+    # reparameterised (G_inf, G_1 = G0 - G_inf, tau); its G_inf is a fitted parameter with
+    # its own Gauss-Newton error, which the delta method on the standard fit must give
+    prony = _fit(noisy, rheology="prony:1")
+    std = {d["name"]: d for d in noisy_fit.derived}
+    other = {d["name"]: d for d in prony.derived}
+    i = prony.names.index("G_inf")
+    assert std["G_inf"]["value"] == pytest.approx(prony.values[i], rel=1e-5)
+    assert std["G_inf"]["stderr"] == pytest.approx(prony.stderr[i], rel=2e-3)
+    assert std["E_inf"]["value"] == pytest.approx(3 * prony.values[i], rel=1e-5)
+    assert std["E_inf"]["stderr"] == pytest.approx(3 * prony.stderr[i], rel=2e-3)
+    # the glass modulus: G0 of the standard model, G_inf + G_1 of the Prony series
+    assert other["E_0"]["value"] == pytest.approx(3 * noisy_fit["G0"], rel=1e-5)
+    assert other["E_0"]["stderr"] == pytest.approx(3 * noisy_fit.stderr[0], rel=2e-3)
+    assert std["E0"]["value"] == 3 * noisy_fit["G0"] and std["E0"]["status"] == "ok"
+    # everywhere: console, JSON, CSV
+    assert "E_inf_Pa" in noisy_fit.summary() and "nu = 0.5" in noisy_fit.summary()
+    paths = fitting.write_report(noisy_fit, tmp_path)
+    table = json.loads(paths["json"].read_text())
+    assert table["E_inf_Pa"]["derived"] is True
+    assert table["E_inf_Pa"]["stderr"] == pytest.approx(std["E_inf"]["stderr"])
+    with paths["csv"].open() as fh:
+        rows = {r["parameter"]: r for r in csv.DictReader(fh)}
+    assert rows["E1"]["derived"] == "True" and float(rows["E1"]["value"]) == pytest.approx(
+        3 * noisy_fit["G1"])

@@ -95,7 +95,8 @@ def test_each_recovers_every_point_within_its_errors(each):
 
 def test_failures_are_isolated_and_named(each):
     assert each.results[1] is None and "no contact found" in each.errors[1]
-    assert each.results[3] is None and "start depth" in each.errors[3]
+    # a curve with zero force: no contact in the data (before: a confusing start-depth error)
+    assert each.results[3] is None and "no contact in the data" in each.errors[3]
     assert each.n_failed == 2 and each.n_converged == 3
     assert all(each.errors[k] is None for k in (0, 2, 4))
     text = each.summary()
@@ -123,6 +124,54 @@ def test_dataset_is_labelled_and_round_trips(each, tmp_path):
     assert grid["G0_Pa"].dims == ("grid_y", "grid_x")
     assert grid["G0_Pa"].sel(grid_x=1, grid_y=0).item() == pytest.approx(each.values()[2, 0])
     assert np.isnan(grid["G0_Pa"].sel(grid_x=1, grid_y=1).item())
+
+
+def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
+    paths = fitting.write_each_report(each, tmp_path)
+    import csv
+
+    with paths["csv"].open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["status"] for r in rows] == ["ok", "failed", "ok", "failed", "ok"]
+    for k in (0, 2, 4):  # each curve's own warning is kept (the relaxed model, no hold)
+        assert "no curve has a hold" in rows[k]["warnings"]
+        assert float(rows[k]["radius_m"]) == R and rows[k]["profile"] == "Parabola"
+        assert rows[k]["contact_point"] == "fixed" and rows[k]["convergence"] == "converged"
+        # the retract's quality, and R² of the retract = R² of the whole (one segment)
+        assert float(rows[k]["r_squared_retract"]) == pytest.approx(
+            float(rows[k]["r_squared"]), rel=1e-12)
+        assert float(rows[k]["max_residual_retract"]) > 1.0
+        # Young's moduli beside the shear moduli (E = 3G), with errors
+        assert float(rows[k]["E0_Pa"]) == pytest.approx(3 * float(rows[k]["G0_Pa"]))
+        assert float(rows[k]["E0_Pa_stderr"]) == pytest.approx(
+            3 * float(rows[k]["G0_Pa_stderr"]))
+        assert float(rows[k]["E_inf_Pa_stderr"]) > 0
+    table = json.loads(paths["json"].read_text())
+    assert table["settings"]["radius_m"] == R and table["settings"]["model"] == "relaxed"
+    assert table["ok"] == 3 and table["flagged"] == 0
+    (hold,) = [w for w in table["warnings"] if "hold" in w["kind"]]
+    assert hold["curves"] == 3
+    import xarray as xr
+
+    ds = xr.load_dataset(paths["netcdf"], engine="h5netcdf")
+    assert ds.attrs["radius_m"] == R and ds.attrs["contact_point"] == "fixed"
+    assert list(ds["status"].values) == [r["status"] for r in rows]
+    assert ds["E_inf_Pa"].values[0] == pytest.approx(float(rows[0]["E_inf_Pa"]))
+    # the console: a status beside every median, the warnings once by kind
+    text = each.summary()
+    assert "3 ok, 0 flagged" in text and "2 failed" in text
+    g0 = [r["G0_Pa"] for r in each.results if r is not None]
+    assert f"{np.median(g0):12.5g}   (ok 3)" in text
+    assert "3x: the relaxed model assumes" in text
+
+
+def test_fit_each_warns_once_per_kind(curves):
+    # per-curve warnings are not repeated for every curve: one warning with the count
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fitting.fit_each(curves, radius=R, n_starts=STARTS, chunk=2, progress=False)
+    hold = [str(w.message) for w in caught if "no curve has a hold" in str(w.message)]
+    assert len(hold) == 1 and hold[0].startswith("3 of 3 fitted curves")
 
 
 def test_bad_options_are_named(curves):

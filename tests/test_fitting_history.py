@@ -10,6 +10,7 @@ pads every subsampled curve to the same length), so few compilations serve the f
 """
 
 import csv
+import json
 import pathlib
 import warnings
 
@@ -122,6 +123,41 @@ def test_fit_csv_and_figure_of_a_history_fit(subsampled_fit, tmp_path):
     fig_path = tmp_path / "fit.png"
     plot_fit(subsampled_fit, fig_path)
     assert fig_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_quality_per_segment_and_the_weighting_of_r_squared(subsampled_fit, tmp_path):
+    # 150 kept samples standing for 900: the headline R² weights each by its count, the
+    # unweighted one counts it once; both and the per-segment values from fit.csv alone
+    res = subsampled_fit
+    paths = fitting.write_report(res, tmp_path)
+    with paths["samples"].open() as fh:
+        rows = list(csv.DictReader(fh))
+
+    def r2(rs, weighted):
+        f = np.array([float(r["force_N"]) for r in rs])
+        m = np.array([float(r["model_force_N"]) for r in rs])
+        w = np.array([float(r["weight"]) for r in rs]) if weighted else np.ones(len(rs))
+        mean = np.sum(w * f) / np.sum(w)
+        return 1 - np.sum(w * (m - f) ** 2) / np.sum(w * (f - mean) ** 2)
+
+    assert res.r_squared == pytest.approx(r2(rows, True), rel=1e-10)
+    assert res.r_squared_unweighted == pytest.approx(r2(rows, False), rel=1e-10)
+    assert abs(res.r_squared - res.r_squared_unweighted) > 1e-6  # the weights matter here
+    table = json.loads(paths["json"].read_text())
+    assert [s["segment"] for s in table["segments"]] == ["approach", "hold", "retract"]
+    for s in table["segments"]:
+        part = [r for r in rows if r["segment"] == s["segment"]]
+        w = np.array([float(r["weight"]) for r in part])
+        e = np.array([float(r["residual"]) for r in part])
+        assert s["reduced_chi2"] == pytest.approx(np.sum(w * e**2) / np.sum(w), rel=1e-10)
+        assert s["max_residual"] == pytest.approx(np.max(np.abs(e)), rel=1e-12)
+        assert s["r_squared"] == pytest.approx(r2(part, True), rel=1e-10)
+        assert s["n_measured"] == pytest.approx(np.sum(w))
+        assert s["described"] and s["reduced_chi2"] < 2
+    # the fitted contact lies inside the data (the offset is recovered): no flag
+    assert table["status"] == "ok" and table["flags"] == {}
+    text = res.summary()
+    assert "[[segments]]" in text and "hold" in text and "unweighted" in text
 
 
 def test_oocyte_history_fit():

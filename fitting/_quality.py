@@ -1,0 +1,318 @@
+r"""How good a fit is, said honestly: quality per segment, model inadequacy, a contact point
+outside the data, convergence, and curves without a contact signal.
+
+Every function here works on plain arrays of the prepared data (:class:`CurveBatch`
+fields, shape `(curves, samples)`) and the model at the optimum, so that the finish of a
+fit can later run batched; :func:`assess` applies them to a :class:`FitResult`.
+
+Quality measures (σ: each sample's noise, :attr:`CurveBatch.noise`; $w$: the number of
+measured samples a kept sample stands for, :attr:`CurveBatch.weight`; $r = (F^\mathrm{eff}
+- F)/\sigma$ the fitted residual):
+
+- $R^2$ of the model force, *weighted* (each kept sample counted $w$ times: the headline
+  $R^2$, an estimate of $R^2$ over all measured samples) and *unweighted* (over the kept
+  samples, each once: subsampling keeps more samples where the force changes fast, so this
+  one weighs the contact, the hold's start and the jump-off more).
+- per segment (approach, hold, retract): both $R^2$, the reduced $\chi^2$ of the segment
+  $\sum w r^2 / \sum w$ (the mean squared normalised residual per measured sample; the
+  fit's $k$ parameters are not shared out among the segments) and the largest $|r|$.
+
+Flags (:data:`FLAGS`; each with a message naming the numbers):
+
+- ``model_inadequate``: the reduced $\chi^2$ exceeds :data:`INADEQUATE_CHI2` (RMS residual
+  above 5σ): the residuals are systematic, the model does not describe the data. The
+  standard errors are then those of the Gauss–Newton covariance scaled by $\chi^2_\mathrm{red}$
+  (lmfit's ``scale_covar``, :mod:`fitting._uncertainty`): how tightly the misfit holds
+  the parameters, not the precision of a measurement, and not a confidence interval.
+- ``segment_not_described``: a fitted segment with $R^2 <$ :data:`POOR_R2` while its
+  residuals are above the noise (segment $\chi^2_\mathrm{red} > 2$: a flat, noise-dominated
+  segment has $R^2$ near 0 however good the fit), or with a segment $\chi^2_\mathrm{red}$
+  above :data:`INADEQUATE_CHI2`.
+- ``contact_outside_data``: a fitted contact point (indentation offset $\delta$, model
+  indentation $d + \delta$) before the first fitted approach sample, with the model in
+  contact there while the data are not (the model starts at a force the data do not show),
+  or beyond the deepest sample (the model never touches). Such an offset is not a fit
+  result but a failure of the model to describe the start of contact. It is flagged, not
+  bounded: a bound would only move the failure into the other parameters and report the
+  offset "at a bound", while the flag names the misfit where it happens.
+- ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
+  gives the reason (the step limit, or a stop without progress) and what to try.
+
+A curve whose data show no contact (:func:`check_contact_signal`: on the approach and hold
+the baselined force never stays above ``5 σ`` for 5 samples — the loader's contact
+detection, :func:`fitting.preprocess` — or, on a retract-only curve, $|F|$ never does) is not
+fitted: a `ValueError` with the reason (a failed curve in :func:`fitting.fit_each`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import warnings
+
+import numpy as np
+
+from ._curve import DataError
+from ._prepare import SEGMENTS, noise_level
+from ._preprocess import _detect_index
+from ._uncertainty import derived_quantities
+
+__all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
+           "segment_quality", "contact_outside", "convergence", "check_contact_signal",
+           "assess", "warning_kinds", "warn_summary"]
+
+#: Reduced χ² above which the residuals are far above the noise (RMS residual > 5 σ).
+INADEQUATE_CHI2 = 25.0
+
+#: R² below which a segment with residuals above the noise is not described.
+POOR_R2 = 0.5
+
+#: Contact-signal detection: the loader's defaults (:func:`fitting.preprocess`).
+SIGNAL_THRESHOLD = 5.0
+SIGNAL_RUN = 5
+
+#: The flags of a fit (see the module docstring).
+FLAGS = ("model_inadequate", "segment_not_described", "contact_outside_data",
+         "not_converged")
+
+
+def r_squared(model, force, weight, mask) -> float:
+    """$R^2 = 1 - \\sum w (F_m - F)^2 / \\sum w (F - \\bar F_w)^2$ over the masked samples
+    (`weight` `None`: every sample once); nan with fewer than 2 samples or no variance."""
+    mask = np.asarray(mask, dtype=bool)
+    f = np.asarray(force)[mask]
+    w = np.ones_like(f) if weight is None else np.asarray(weight)[mask]
+    if f.size < 2 or np.sum(w) <= 0:
+        return float("nan")
+    mean = float(np.sum(w * f) / np.sum(w))
+    ss_tot = float(np.sum(w * (f - mean) ** 2))
+    ss_res = float(np.sum(w * (np.asarray(model)[mask] - f) ** 2))
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
+
+
+@dataclasses.dataclass
+class SegmentQuality:
+    """Fit quality of one segment (all curves together): `segment` name, `n_kept`,
+    `n_measured` samples, `r_squared` (weighted), `r_squared_unweighted`, `reduced_chi2`
+    ($\\sum w r^2/\\sum w$), `max_residual` (largest $|r|$ [σ]), `described`."""
+
+    segment: str
+    n_kept: int
+    n_measured: int
+    r_squared: float
+    r_squared_unweighted: float
+    reduced_chi2: float
+    max_residual: float
+    described: bool
+
+    def as_dict(self) -> dict:
+        return {k: (_num(v) if isinstance(v, float) else v)
+                for k, v in dataclasses.asdict(self).items()}
+
+
+def _num(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def segment_quality(force, fitted_force, model_force, noise, weight, valid,
+                    segment) -> list[SegmentQuality]:
+    """:class:`SegmentQuality` of every segment present (arrays `(curves, samples)`;
+    `fitted_force` for the residuals, `model_force` for $R^2$, as the headline values)."""
+    valid = np.asarray(valid) > 0
+    seg = np.asarray(segment)
+    w = np.asarray(weight, dtype=float)
+    r = (np.asarray(fitted_force) - np.asarray(force)) / np.asarray(noise)
+    out = []
+    for j, name in enumerate(SEGMENTS):
+        m = valid & (seg == j)
+        if not m.any():
+            continue
+        wm = w[m]
+        chi = float(np.sum(wm * r[m] ** 2) / np.sum(wm)) if np.sum(wm) > 0 else math.nan
+        r2 = r_squared(model_force, force, w, m)
+        described = not (chi > INADEQUATE_CHI2 or (r2 < POOR_R2 and chi > 2.0))
+        out.append(SegmentQuality(
+            segment=name, n_kept=int(m.sum()), n_measured=int(round(float(np.sum(wm)))),
+            r_squared=r2, r_squared_unweighted=r_squared(model_force, force, None, m),
+            reduced_chi2=chi, max_residual=float(np.max(np.abs(r[m]))), described=described))
+    return out
+
+
+def contact_outside(indentation, force, model_force, noise, valid, segment, contact_radius,
+                    delta: float) -> list[str]:
+    """Messages for curves whose fitted contact point (model indentation $d + \\delta$, `delta`
+    [m]) lies outside the fitted data: before the first approach sample with the model in
+    contact there (contact radius > 0) and its force more than 5σ from the data's, or
+    beyond the deepest sample."""
+    out = []
+    d = np.asarray(indentation)
+    valid = np.asarray(valid) > 0
+    seg = np.asarray(segment)
+    for c in range(d.shape[0]):
+        idx = np.flatnonzero(valid[c])
+        if idx.size == 0:
+            continue
+        i0 = int(idx[0])
+        where = f"curve {c}: " if d.shape[0] > 1 else ""
+        sig = float(np.asarray(noise)[c, i0])
+        fm, fd = float(np.asarray(model_force)[c, i0]), float(np.asarray(force)[c, i0])
+        ahead = float(d[c, i0]) + delta
+        if (seg[c, i0] == SEGMENTS.index("approach") and ahead > 0
+                and float(np.asarray(contact_radius)[c, i0]) > 0 and abs(fm - fd) > 5 * sig):
+            out.append(f"{where}the fitted contact point lies {ahead:.3g} m before the first "
+                       f"fitted sample (contact_offset {delta:.3g} m): the model starts in "
+                       f"contact at {fm:.3g} N where the data show {fd:.3g} N "
+                       f"({abs(fm - fd) / sig:.0f} sigma); the model does not describe the "
+                       "start of contact, and the offset is not a measured contact point")
+        deepest = float(np.max(d[c, idx])) + delta
+        if deepest <= 0:
+            out.append(f"{where}the fitted contact point lies beyond the deepest sample "
+                       f"(contact_offset {delta:.3g} m, deepest model indentation "
+                       f"{deepest:.3g} m): the model never touches the sample")
+    return out
+
+
+def convergence(converged: bool, steps: int, max_steps: int | None, *,
+                prony_arms: int = 0) -> dict:
+    """``{"converged", "reason", "advice", "steps", "max_steps"}`` of the best start:
+    the reason a search stopped without converging (the step limit, or no progress) and
+    what to try (empty advice when converged)."""
+    steps = int(steps)
+    out = {"converged": bool(converged), "steps": steps,
+           "max_steps": None if max_steps is None else int(max_steps)}
+    if converged:
+        out.update(reason="converged", advice=[])
+        return out
+    if max_steps is not None and steps >= int(max_steps):
+        reason = (f"the best start stopped at the step limit (max_steps {max_steps}) while "
+                  "chi2 was still decreasing")
+        advice = [f"more iterations (max_steps={2 * int(max_steps)}; command line "
+                  f"--max-steps {2 * int(max_steps)})"]
+    else:
+        reason = (f"the best start stopped after {steps} steps without meeting the "
+                  "tolerance (no step lowered chi2: a flat or non-smooth valley, or "
+                  "non-finite residuals)")
+        advice = ["more starts (n_starts; command line --starts)"]
+    if prony_arms > 1:
+        advice.append(f"fewer Prony arms (rheology='prony:{prony_arms - 1}' or 'standard')")
+    advice.append("fix a parameter the data do not determine (fixed={...}; command line "
+                  "--fix NAME=VALUE) or narrow its bounds")
+    out.update(reason=reason, advice=advice)
+    return out
+
+
+def check_contact_signal(curves, spec) -> None:
+    """`ValueError` naming the curve when its data show no contact (see the module
+    docstring): the approach/hold force never stays above 5σ for 5 samples (history
+    model, or any curve with those segments fitted), or $|F|$ on a retract-only curve."""
+    for n, c in enumerate(curves):
+        names = c.segment_names
+        seg = np.asarray(c.segment)
+        f = np.asarray(c.force, dtype=float)
+        pressed = [names.index(s) for s in ("approach", "hold") if s in names]
+        if spec.model == "history" and pressed:
+            part, what = f[np.isin(seg, pressed)], "approach and hold"
+        else:
+            part, what = np.abs(f[seg == names.index("retract")] if "retract" in names
+                                else f), "retract (|F|)"
+            if spec.model == "history":
+                what = "curve (|F|)"
+        if part.size == 0:
+            continue
+        noise = c.contact.noise if c.contact is not None else None
+        sigma = noise_level(part if noise is None else f, noise)
+        try:
+            _detect_index(part, SIGNAL_THRESHOLD * sigma, SIGNAL_RUN)
+        except DataError:
+            label = f"curve {n} ({c.source or 'no source'})"
+            raise ValueError(
+                f"{label}: no contact in the data: on the {what} the force never stays "
+                f"above {SIGNAL_THRESHOLD:g} sigma = {SIGNAL_THRESHOLD * sigma:.3g} N for "
+                f"{SIGNAL_RUN} samples (largest {float(np.max(part)):.3g} N); the tip does "
+                "not indent the sample, or the contact lies outside the selected "
+                "segments") from None
+
+
+def assess(result, *, max_steps: int | None = None) -> list[str]:
+    """Fill the quality fields of a :class:`FitResult` (`r_squared_unweighted`,
+    `segments`, `flags`, `convergence`, `stderr_scale`, `derived`) and return the new warning
+    messages (also appended to `result.warnings`)."""
+    data = result.data
+    valid = np.asarray(data.valid) > 0
+    result.r_squared_unweighted = r_squared(result.model_force, data.force, None, valid)
+    result.segments = segment_quality(data.force, result.fitted_force, result.model_force,
+                                      data.noise, data.weight, data.valid, data.segment)
+    red = float(result.reduced_chi2)
+    result.stderr_scale = math.sqrt(red) if math.isfinite(red) and red > 0 else math.nan
+    flags: dict[str, str] = {}
+    if math.isfinite(red) and red > INADEQUATE_CHI2:
+        flags["model_inadequate"] = (
+            f"the model does not describe the data: reduced chi2 = {red:.3g} (> "
+            f"{INADEQUATE_CHI2:g}; residuals about {math.sqrt(red):.3g} sigma RMS, "
+            "systematic, not noise); the standard errors are scaled by sqrt(reduced chi2) "
+            "and say how tightly the misfit holds the parameters, not the measurement "
+            "precision")
+    bad = [s for s in result.segments if not s.described]
+    if bad:
+        flags["segment_not_described"] = "; ".join(
+            f"the {s.segment} segment is not described by the model: R^2 = "
+            f"{s.r_squared:.3g} (unweighted {s.r_squared_unweighted:.3g}), reduced chi2 "
+            f"{s.reduced_chi2:.3g}, largest residual {s.max_residual:.3g} sigma" for s in bad)
+    if result.spec.contact_offset and "contact_offset" in result.names:
+        msgs = contact_outside(data.indentation, data.force, result.model_force, data.noise,
+                               data.valid, data.segment,
+                               np.asarray(result.model_solution.contact_radius),
+                               float(result["contact_offset"]))
+        if msgs:
+            flags["contact_outside_data"] = "; ".join(msgs)
+    steps = result.start_steps
+    best = int(np.argmin(np.where(np.isfinite(result.start_losses), result.start_losses,
+                                  np.inf))) if np.size(result.start_losses) else 0
+    result.convergence = convergence(
+        result.converged, int(np.asarray(steps)[best]) if steps is not None else 0,
+        max_steps, prony_arms=int(getattr(result.spec, "arms", 0) or 0)
+        if result.spec.rheology == "prony" else 0)
+    if not result.converged:
+        flags["not_converged"] = ("the fit did not converge: " + result.convergence["reason"]
+                                  + "; the values are the best point found; try: "
+                                  + "; ".join(result.convergence["advice"]))
+    result.flags = flags
+    result.derived = derived_quantities(result.spec, result.values, result.covariance,
+                                        result.status)
+    new = list(flags.values())
+    result.warnings = list(result.warnings) + new
+    return new
+
+
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+def warning_kinds(results) -> list[tuple[str, int, str]]:
+    """The warnings of many fits grouped by kind (the message with its numbers replaced by
+    ``#``): `(kind, number of fits, an example message)`, most frequent first."""
+    kinds: dict[str, list] = {}
+    for r in results:
+        if r is None:
+            continue
+        for kind in dict.fromkeys(_NUMBER.sub("#", m) for m in r.warnings):
+            kinds.setdefault(kind, [0, None])[0] += 1
+        for m in r.warnings:
+            entry = kinds[_NUMBER.sub("#", m)]
+            entry[1] = entry[1] or m
+    return sorted(((k, n, ex) for k, (n, ex) in kinds.items()), key=lambda x: -x[1])
+
+
+def warn_summary(results, *, stacklevel: int = 3) -> None:
+    """One warning per kind for many fits (:func:`warning_kinds`): the count and an example;
+    :class:`IdentifiabilityWarning` for parameters not determined or at a bound, else
+    :class:`ModelValidityWarning`."""
+    from ._uncertainty import IdentifiabilityWarning, ModelValidityWarning
+
+    total = sum(r is not None for r in results)
+    for kind, n, example in warning_kinds(results):
+        ident = ("not determined" in kind or "bound (" in kind or "too few samples" in kind)
+        warnings.warn(f"{n} of {total} fitted curves: {example}",
+                      IdentifiabilityWarning if ident else ModelValidityWarning,
+                      stacklevel=stacklevel)

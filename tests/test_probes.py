@@ -1,0 +1,231 @@
+"""The exact sphere, pyramids, the Tabor parameter and profile validity, against closed forms
+that do not go through the implementation (Sneddon 1965, Maugis 1995, Bilodeau 1992, nanite's
+published formulas)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.optimize import minimize_scalar
+
+import jaxcontact as jc
+
+R = 10e-6
+E_STAR = 4 * 1e3  # Pa
+FRACTIONS = np.array([0.05, 0.2, 0.4, 0.6, 0.8, 0.9])
+
+
+def sneddon_depth(a, R):
+    return 0.5 * a * np.log((R + a) / (R - a))
+
+
+def sneddon_force(a, R, E):
+    return 0.5 * E * ((a * a + R * R) * np.log((R + a) / (R - a)) - 2 * a * R)
+
+
+def mdr_quad(fprime, x):
+    """g(x) = x int_0^x f'(r) / sqrt(x^2 - r^2) dr by quadrature (algebraic end weight)."""
+    val, _ = quad(lambda r: fprime(r) / np.sqrt(x + r), 0.0, x, weight="alg", wvar=(0.0, -0.5))
+    return x * val
+
+
+# --------------------------------------------------------------------------------------
+# exact sphere: the MDR transform and Sneddon's solution
+# --------------------------------------------------------------------------------------
+
+
+def test_sphere_mdr_transform_matches_quadrature():
+    s = jc.Sphere(R)
+    for f in [0.1, 0.5, 0.9]:
+        x = f * R
+        ref = mdr_quad(lambda r: r / np.sqrt(R * R - r * r), x)
+        np.testing.assert_allclose(s.g(x), ref, rtol=1e-9)
+        # the slope by central differences, the integral by quadrature of g
+        h = 1e-6 * R
+        fd = (float(s.g(x + h)) - float(s.g(x - h))) / (2 * h)
+        np.testing.assert_allclose(s.dg(x), fd, rtol=1e-7)
+        ig, _ = quad(lambda t: float(s.g(t)), 0.0, x, epsabs=0, epsrel=1e-12)
+        np.testing.assert_allclose(s.integral_g(x), ig, rtol=1e-10)
+    r = np.linspace(0, R, 9)
+    np.testing.assert_allclose(s.shape(r), R - np.sqrt(R * R - r * r), rtol=1e-14, atol=1e-30)
+    assert np.isinf(float(s.shape(1.01 * R)))
+
+
+def test_sphere_small_contacts_are_the_paraboloid():
+    # no cancellation in the integral: the Taylor series a^3/(3R)(1 + (a/R)^2/5 + ...),
+    # sum 3 f^(2k) / ((2k+1)(2k+3)), down to a = 1e-6 R and across the switch at 0.3 R
+    s = jc.Sphere(R)
+    for f in [1e-6, 1e-3, 0.1, 0.29, 0.31]:
+        a = f * R
+        series = a**3 / (3 * R) * sum(3 * f ** (2 * k) / ((2 * k + 1) * (2 * k + 3))
+                                      for k in range(6))
+        np.testing.assert_allclose(s.integral_g(a), series, rtol=2e-6 * f**2 + 1e-14)
+        np.testing.assert_allclose(s.g(a), a * a / R * (1 + f**2 / 3 + f**4 / 5 + f**6 / 7
+                                                         + f**8 / 9 + f**10 / 11),
+                                   rtol=1e-6 * f**2 + 1e-15)
+
+
+def test_sneddon_sphere_depth_and_force():
+    s = jc.Sphere(R)
+    a = FRACTIONS * R
+    d = jc.jkr_displacement(s, a, effective_modulus=E_STAR, work_of_adhesion=0.0)
+    F = jc.jkr_force(s, a, effective_modulus=E_STAR, work_of_adhesion=0.0)
+    np.testing.assert_allclose(d, sneddon_depth(a, R), rtol=1e-13)
+    np.testing.assert_allclose(F, sneddon_force(a, R, E_STAR), rtol=1e-11)
+    # the inverse: the contact radius of a depth
+    np.testing.assert_allclose(jc.profile_radius(s, sneddon_depth(a, R)), a, rtol=1e-12)
+    # gradient of the radius: 1/g'(a)
+    da = jax.grad(lambda d_: s.contact_radius(d_))(float(sneddon_depth(0.6 * R, R)))
+    fd = 2e-7 * R / (sneddon_depth(0.6 * R + 1e-7 * R, R) - sneddon_depth(0.6 * R - 1e-7 * R, R))
+    np.testing.assert_allclose(da, fd, rtol=1e-7)
+
+
+def test_sphere_against_nanite_series():
+    # nanite's (and JPK's) truncated series of Sneddon's sphere, F(delta), E/(1 - nu^2) = E*
+    s = jc.Sphere(R)
+    delta = np.array([0.01, 0.1, 0.3, 0.6]) * R
+    x = delta / R
+    nanite = 4 / 3 * E_STAR * np.sqrt(R) * delta**1.5 * (
+        1 - x / 10 - x**2 / 840 + 11 / 15120 * x**3 + 1357 / 6652800 * x**4)
+    a = jc.profile_radius(s, delta)
+    F = jc.jkr_force(s, a, effective_modulus=E_STAR, work_of_adhesion=0.0)
+    np.testing.assert_allclose(F, nanite, rtol=2e-5)
+    # and the paraboloid departs: by 0.9 % at a = 0.3 R, 2.8 % at 0.5 R (PARABOLA_LIMIT)
+    for f, dev in [(0.3, 0.0094), (0.5, 0.0283)]:
+        d = sneddon_depth(f * R, R)
+        hertz = 4 / 3 * E_STAR * np.sqrt(R) * d**1.5
+        assert abs(hertz / sneddon_force(f * R, R, E_STAR) - 1 - dev) < 5e-4
+
+
+def test_jkr_of_the_exact_sphere():
+    # Maugis (1995): the exact-sphere JKR force is Sneddon's minus the flat-punch term;
+    # strong adhesion, so that the pull-off lies at a ~ 0.5 R
+    w = 1.5e-3
+    s = jc.Sphere(R)
+    a = FRACTIONS * R
+    F = jc.jkr_force(s, a, effective_modulus=E_STAR, work_of_adhesion=w)
+    ref = sneddon_force(a, R, E_STAR) - np.sqrt(8 * np.pi * w * E_STAR * a**3)
+    np.testing.assert_allclose(F, ref, rtol=1e-11)
+    d = jc.jkr_displacement(s, a, effective_modulus=E_STAR, work_of_adhesion=w)
+    np.testing.assert_allclose(d, sneddon_depth(a, R) - np.sqrt(2 * np.pi * a * w / E_STAR),
+                               rtol=1e-11)
+    # pull-off: minima of the closed forms (force control: F; displacement control: d)
+    for control, fun in [("force", lambda f: sneddon_force(f * R, R, E_STAR)
+                          - np.sqrt(8 * np.pi * w * E_STAR * (f * R) ** 3)),
+                         ("displacement", lambda f: sneddon_depth(f * R, R)
+                          - np.sqrt(2 * np.pi * f * R * w / E_STAR))]:
+        best = minimize_scalar(fun, bounds=(1e-4, 0.94), method="bounded",
+                               options={"xatol": 1e-12})
+        po = jc.pull_off(s, effective_modulus=E_STAR, work_of_adhesion=w, control=control)
+        np.testing.assert_allclose(po.radius / R, best.x, rtol=1e-6)
+        if control == "force":
+            assert 0.3 < best.x < 0.9  # beyond the paraboloid's range (0.3 R)
+            np.testing.assert_allclose(po.force, best.fun, rtol=1e-10)
+            # weaker than the paraboloid's -(3/2) pi w R
+            assert -1.5 * np.pi * w * R < float(po.force) < -0.8 * 1.5 * np.pi * w * R
+    # stable branch of the front: the radius of a displacement
+    d_mid = float(jc.jkr_displacement(s, 0.7 * R, effective_modulus=E_STAR, work_of_adhesion=w))
+    np.testing.assert_allclose(jc.jkr_contact_radius(s, d_mid, effective_modulus=E_STAR,
+                                                     work_of_adhesion=w), 0.7 * R, rtol=1e-10)
+
+
+def test_sphere_limit_is_an_error_not_an_extrapolation():
+    s = jc.Sphere(R)
+    assert float(s.max_radius) == pytest.approx(jc.SPHERE_LIMIT * R)
+    d_lim = sneddon_depth(jc.SPHERE_LIMIT * R, R)
+    with pytest.raises(ValueError, match="depth.*exceeds the limit of the exact sphere"):
+        jc.profile_radius(s, 1.01 * d_lim)
+    with pytest.raises(ValueError, match="contact radius"):
+        jc.jkr_force(s, 0.97 * R, effective_modulus=E_STAR, work_of_adhesion=0.0)
+    # traced: flagged per lane, never a number
+    depths = jnp.array([0.5 * d_lim, 1.5 * d_lim])
+    a = jax.jit(lambda d: jc.profile_radius(s, d, throw=False))(depths)
+    assert np.isfinite(a[0]) and np.isnan(a[1])
+    assert np.all(np.isinf(np.asarray(s.g(jnp.array([0.96, 1.0, 2.0]) * R))))
+
+
+# --------------------------------------------------------------------------------------
+# pyramids
+# --------------------------------------------------------------------------------------
+
+
+def nanite_pyr3s(delta, E, alpha_deg, nu):
+    """nanite 4.2.3, model_hertz_three_sided_pyramid.hertz_three_sided_pyramid (its code)."""
+    return 0.8887 * np.tan(alpha_deg * np.pi / 180) * E / (1 - nu**2) * delta**2
+
+
+def bilodeau_pyr4s(delta, E, alpha_deg, nu):
+    """Bilodeau (1992), four-sided pyramid of face angle alpha: F = 1.4906/2 E* tan(a) d^2."""
+    return 1.4906 / 2 * np.tan(alpha_deg * np.pi / 180) * E / (1 - nu**2) * delta**2
+
+
+@pytest.mark.parametrize("sides, formula", [(3, nanite_pyr3s), (4, bilodeau_pyr4s)])
+def test_pyramid_force_matches_published_formulas(sides, formula):
+    E, nu = 3e3, 0.5  # Young's modulus [Pa], incompressible: E* = 4 G = E / (1 - nu^2)
+    delta = np.array([0.2e-6, 1e-6, 3e-6])
+    for deg in (15.0, 25.0, 35.0):
+        cone = jc.pyramid(math.radians(deg), sides=sides)
+        a = jc.profile_radius(cone, delta)
+        F = jc.jkr_force(cone, a, effective_modulus=E / (1 - nu**2), work_of_adhesion=0.0)
+        np.testing.assert_allclose(F, formula(delta, E, deg, nu), rtol=1e-12)
+        # the same pyramid by its edge angle: tan(face) = cos(pi/n) tan(edge)
+        edge = math.atan(math.tan(math.radians(deg)) / math.cos(math.pi / sides))
+        np.testing.assert_allclose(jc.pyramid(edge, sides=sides, angle="edge").half_angle,
+                                   cone.half_angle, rtol=1e-13)
+
+
+def test_pyramid_cone_is_near_the_area_equivalent_cone():
+    # an independent estimate: the cone with the pyramid's projected area at every depth
+    # (apothem d tan(alpha), area n tan(pi/n) (d tan alpha)^2) is within 4 % (4 sides) and
+    # 9 % (3 sides) of the published factors
+    alpha = math.radians(20.0)
+    for n, tol in [(4, 0.04), (3, 0.09)]:
+        tan_area = math.tan(alpha) * math.sqrt(n * math.tan(math.pi / n) / math.pi)
+        ratio = math.tan(jc.pyramid_cone_angle(alpha, n)) / tan_area
+        assert 1.0 < ratio < 1.0 + tol
+
+
+def test_pyramid_arguments():
+    with pytest.raises(ValueError, match="sides"):
+        jc.pyramid(0.3, sides=5)
+    with pytest.raises(ValueError, match="angle"):
+        jc.pyramid(0.3, angle="side")
+    with pytest.raises(ValueError, match="half_angle"):
+        jc.pyramid(math.pi / 2)
+
+
+# --------------------------------------------------------------------------------------
+# Tabor parameter and profile validity
+# --------------------------------------------------------------------------------------
+
+
+def test_tabor_parameter():
+    # a typical cell measurement: R = 5 um, w = 1e-4 J/m^2, G_glass = 1 kPa: very large
+    mu = jc.tabor_parameter(5e-6, 1e-4, 4e3)
+    np.testing.assert_allclose(mu, (5e-6 * 1e-8 / (16e6 * 27e-30)) ** (1 / 3), rtol=1e-13)
+    assert mu > 100
+    # a stiff solid (E* = 100 GPa), w = 0.1 J/m^2, R = 50 nm: DMT-like (mu < 1)
+    assert float(jc.tabor_parameter(5e-8, 0.1, 1e11)) < 1
+    # mu^3 scales as 1/z0^3
+    np.testing.assert_allclose(jc.tabor_parameter(5e-6, 1e-4, 4e3, 0.6e-9), mu / 2, rtol=1e-13)
+    np.testing.assert_allclose(jc.tabor_parameter(jnp.array([1e-6, 8e-6]), 1e-4, 4e3),
+                               [mu / 5 ** (1 / 3), mu * (8 / 5) ** (1 / 3)], rtol=1e-13)
+    with pytest.raises(ValueError, match="effective_modulus"):
+        jc.tabor_parameter(5e-6, 1e-4, -1.0)
+    traced = jax.jit(jc.tabor_parameter)(5e-6, 1e-4, -1.0)
+    assert np.isnan(traced)
+
+
+def test_profile_validity():
+    v = jc.profile_validity(jc.Parabola(R), jnp.array([0.1, 0.3, 0.5]) * R)
+    np.testing.assert_allclose(v.fraction, [1 / 3, 1.0, 5 / 3], rtol=1e-14)
+    assert v.valid.tolist() == [True, True, False] and "Sphere" in v.reason
+    v = jc.profile_validity(jc.Sphere(R), 0.9 * R)
+    assert bool(v.valid) and float(v.limit) == pytest.approx(0.95 * R)
+    v = jc.profile_validity(jc.pyramid(0.3), 1.0)
+    assert bool(v.valid) and np.isinf(v.limit)
+    tab = jc.Tabulated(r=np.linspace(0, 1e-6, 8), f=np.linspace(0, 1e-6, 8) ** 2 / 2e-6)
+    assert not bool(jc.profile_validity(tab, 2e-6).valid)

@@ -229,3 +229,88 @@ def test_profile_validity():
     assert bool(v.valid) and np.isinf(v.limit)
     tab = jc.Tabulated(r=np.linspace(0, 1e-6, 8), f=np.linspace(0, 1e-6, 8) ** 2 / 2e-6)
     assert not bool(jc.profile_validity(tab, 2e-6).valid)
+
+
+# --------------------------------------------------------------------------------------
+# viscoelastic: retract and simulate with the exact sphere
+# --------------------------------------------------------------------------------------
+
+# standard model: G_glass = G0 = 2 kPa, G_inf = 2/3 kPa, tau = eta1 / (G0 + G1) = 1 s
+RHEO = jc.StandardModel(G0=2e3, G1=1e3, eta1=3e3)
+G_INF, G_GLASS = 2e3 / 3, 2e3
+W_VISCO = 1e-4
+
+
+def jkr_sphere_minimum(w, E, control):
+    """Minimum over a/R of the closed-form exact-sphere JKR F(a) (force control) or d(a)
+    (displacement control): `(a, d, F)` there."""
+
+    def d(f):
+        return sneddon_depth(f * R, R) - np.sqrt(2 * np.pi * f * R * w / E)
+
+    def F(f):
+        return sneddon_force(f * R, R, E) - np.sqrt(8 * np.pi * w * E * (f * R) ** 3)
+
+    best = minimize_scalar(F if control == "force" else d, bounds=(1e-4, 0.94),
+                           method="bounded", options={"xatol": 1e-12})
+    return best.x * R, d(best.x), F(best.x)
+
+
+def test_retract_exact_sphere_relaxed_start_and_paraboloid_limit():
+    s = jc.Sphere(R)
+    d0 = sneddon_depth(0.7 * R, R)
+    ts = jnp.linspace(0.0, 4000.0, 200)
+    # on the receding front F(a) is the JKR curve with E* = 4 G_inf and w G_g / G_inf, at
+    # every speed (docs/physics.md section 4); slowly, F(d) too: the jump-off of rigid loading
+    sol = jc.retract(RHEO, s, W_VISCO, ts, depth=d0, velocity=d0 / 2000.0)
+    w_eff = W_VISCO * G_GLASS / G_INF
+    a_f, _, F_f = jkr_sphere_minimum(w_eff, 4 * G_INF, "force")
+    assert 0.3 * R < a_f < 0.7 * R
+    np.testing.assert_allclose(sol.max_tensile_force, F_f, rtol=1e-8)
+    a_d, d_d, F_d = jkr_sphere_minimum(w_eff, 4 * G_INF, "displacement")
+    np.testing.assert_allclose(sol.jumpoff_force, F_d, rtol=2e-3)
+    np.testing.assert_allclose(sol.details.fold_radius, a_d, rtol=1e-6)
+    # the relaxed start: Sneddon's force with the relaxed modulus
+    np.testing.assert_allclose(sol.force[0], sneddon_force(0.7 * R, R, 4 * G_INF), rtol=1e-10)
+    # small indentation (a0 = 0.03 R): the paraboloid's curve, to O((a/R)^2)
+    d_small = 1e-3 * R
+    small = jc.retract(RHEO, s, 1e-6, ts, depth=d_small, velocity=d_small / 2000.0)
+    para = jc.retract(RHEO, jc.Parabola(R), 1e-6, ts, depth=d_small, velocity=d_small / 2000.0)
+    scale = float(jnp.max(jnp.abs(para.force)))
+    np.testing.assert_allclose(small.force, para.force, rtol=0, atol=2e-3 * scale)
+    np.testing.assert_allclose(small.max_tensile_force, para.max_tensile_force, rtol=2e-3)
+    assert float(jnp.max(jnp.abs(small.force - para.force))) > 1e-6 * scale  # not the same
+    # beyond the sphere's limit: flagged per lane, not extrapolated
+    bad = jc.retract(RHEO, s, W_VISCO, ts, depth=2.0 * R, velocity=d0 / 2000.0, throw=False)
+    assert bad.result != jc.RESULTS.detached and bool(jnp.all(jnp.isnan(bad.force)))
+
+
+def test_simulate_exact_sphere_long_hold_and_paraboloid_limit():
+    s = jc.Sphere(R)
+    t_app, t_hold, v = 1.0, 30.0, 1.0  # approach 1 s, hold 30 tau, lift over 60 s
+    ts = jnp.concatenate([jnp.linspace(0.0, t_app, 20, endpoint=False),
+                          jnp.linspace(t_app, t_app + t_hold, 20, endpoint=False),
+                          jnp.linspace(t_app + t_hold, t_app + t_hold + 60 * v, 161)])
+
+    def history(d0):
+        up = d0 * ts / t_app
+        down = d0 - d0 * (ts - t_app - t_hold) / 30.0
+        return jnp.where(ts < t_app, up, jnp.where(ts < t_app + t_hold, d0, down))
+
+    d0 = sneddon_depth(0.6 * R, R)
+    sol = jc.simulate(RHEO, s, W_VISCO, ts, history(d0), grid=64)
+    # after the long hold: relaxed, Sneddon's force with G_inf, and the lift's tensile
+    # minimum on the relaxed-start JKR curve (the same as `retract`)
+    end_hold = int(np.searchsorted(np.asarray(ts), t_app + t_hold)) - 1
+    np.testing.assert_allclose(sol.force[end_hold], sneddon_force(0.6 * R, R, 4 * G_INF),
+                               rtol=1e-2)
+    _, _, F_f = jkr_sphere_minimum(W_VISCO * G_GLASS / G_INF, 4 * G_INF, "force")
+    np.testing.assert_allclose(sol.max_tensile_force, F_f, rtol=2e-2)
+    # small indentation: the paraboloid's closed-form relaxed-start curve (`retract`)
+    d_small = 1e-3 * R
+    small = jc.simulate(RHEO, s, 1e-6, ts, history(d_small), grid=64)
+    lift = np.asarray(ts) >= t_app + t_hold
+    para = jc.retract(RHEO, jc.Parabola(R), 1e-6, ts[lift] - (t_app + t_hold),
+                      depth=d_small, velocity=d_small / 30.0)
+    scale = float(jnp.max(jnp.abs(para.force)))
+    np.testing.assert_allclose(small.force[lift], para.force, rtol=0, atol=2e-2 * scale)

@@ -314,3 +314,20 @@ def test_simulate_exact_sphere_long_hold_and_paraboloid_limit():
                       depth=d_small, velocity=d_small / 30.0)
     scale = float(jnp.max(jnp.abs(para.force)))
     np.testing.assert_allclose(small.force[lift], para.force, rtol=0, atol=2e-2 * scale)
+
+
+def test_sweep_exact_sphere_against_closed_form_and_limit():
+    # elastic (G_inf alone): the max tensile force is the exact-sphere JKR minimum under
+    # force control, the jump-off the minimum of d(a); the deepest point is beyond the
+    # sphere's limit (d > 1.74 R) and flagged, not extrapolated
+    G, w = 1e3, 1e-3
+    depths = np.array([0.3, 0.8, 1.2, 2.0]) * R
+    ds = jc.sweep({"G_inf": G, "work_of_adhesion": w, "sphere_radius": R, "depth": depths,
+                   "velocity": 1e-6}, model=jc.RelaxedStart(samples=20), progress=False)
+    status = ds.status.values
+    assert (status[:3] == int(jc.RESULTS.detached._value)).all()
+    assert status[3] != int(jc.RESULTS.detached._value) and np.isnan(ds.max_tensile_force_N[3])
+    _, _, F_f = jkr_sphere_minimum(w, 4 * G, "force")
+    _, _, F_d = jkr_sphere_minimum(w, 4 * G, "displacement")
+    np.testing.assert_allclose(ds.max_tensile_force_N.values[:3], F_f, rtol=1e-8)
+    np.testing.assert_allclose(ds.jumpoff_force_N.values[:3], F_d, rtol=1e-8)

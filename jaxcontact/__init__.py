@@ -88,6 +88,7 @@ from ._bem import bem_heights as bem_heights  # noqa: E402
 from ._bem import bem_simulate as bem_simulate  # noqa: E402
 from ._bem import ellipsoid_heights as ellipsoid_heights  # noqa: E402
 from ._bem import love_displacement as love_displacement  # noqa: E402
+from ._bem import pyramid_heights as pyramid_heights  # noqa: E402
 from ._bem import self_affine_heights as self_affine_heights  # noqa: E402
 from ._bem import tilted_flat_heights as tilted_flat_heights  # noqa: E402
 from ._sweep import AbstractSweepModel as AbstractSweepModel  # noqa: E402

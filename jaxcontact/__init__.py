@@ -51,6 +51,7 @@ from ._probes import tabor_parameter as tabor_parameter  # noqa: E402
 from ._probes import TABOR_SEPARATION as TABOR_SEPARATION  # noqa: E402
 from ._probes import ProfileValidity as ProfileValidity  # noqa: E402
 from ._probes import profile_validity as profile_validity  # noqa: E402
+from ._probes import depth_limit as depth_limit  # noqa: E402
 from ._rheology import AbstractRheology as AbstractRheology  # noqa: E402
 from ._rheology import CreepChain as CreepChain  # noqa: E402
 from ._rheology import Elastic as Elastic  # noqa: E402

@@ -49,6 +49,7 @@ __all__ = [
     "ProfileValidity",
     "profile_validity",
     "PARABOLA_LIMIT",
+    "depth_limit",
 ]
 
 #: The largest contact radius of `Sphere`, as a fraction of $R$: at $a = 0.95R$ the
@@ -168,16 +169,7 @@ class Sphere(AbstractCurvedProfile):
         if lo is not None or hi is not None:
             return numerical_contact_radius(self, depth, lo, hi)
         limit = self._depth_limit()
-        if is_concrete((self, depth)):
-            d = np.asarray(depth, dtype=float)
-            lim = np.asarray(limit, dtype=float)
-            if np.any(d > lim):
-                raise ValueError(
-                    f"`depth` = {float(np.max(d)):g} m exceeds the limit of the exact sphere "
-                    f"(R = {float(np.max(np.asarray(self.R))):g} m): {float(np.max(lim)):g} m, "
-                    f"where the contact radius reaches {SPHERE_LIMIT} R (`SPHERE_LIMIT`); "
-                    "nearer the equator no half-space model holds."
-                )
+        check_depth_limit("depth", self, depth)
 
         def one(d):
             delta = jnp.maximum(d, 0.0) / self.R
@@ -307,6 +299,31 @@ def tabor_parameter(
     R, w, E, z0 = (as_float(v) for _, v, _, _ in names)
     mu = jnp.cbrt(R * w * w / (E * E * z0**3))
     return jnp.where(ok, mu, jnp.nan)
+
+
+def depth_limit(profile: AbstractProfile) -> Array:
+    r"""The largest indentation [m] that `profile` admits: for `Sphere(R)`
+    $g(0.95R) = 0.95R\operatorname{artanh}(0.95) = 1.74R$ (`SPHERE_LIMIT`), `inf` for every
+    other profile. `retract` and `simulate` (displacement control) reject a deeper
+    indentation: `ValueError` for concrete inputs, `RESULTS.invalid_depth` /
+    `RESULTS.invalid_displacement` per lane."""
+    if isinstance(profile, Sphere):
+        return profile._depth_limit()
+    return jnp.asarray(jnp.inf)
+
+
+def check_depth_limit(name: str, profile: AbstractProfile, depth) -> None:
+    """Eager: `ValueError` if a concrete `depth` [m] (any shape) exceeds `depth_limit`."""
+    if not isinstance(profile, Sphere) or not is_concrete((profile, depth)):
+        return
+    d = float(np.max(np.asarray(depth, dtype=float)))
+    limit = float(depth_limit(profile))
+    if d > limit:
+        raise ValueError(
+            f"`{name}` reaches {d:g} m, beyond the limit of the exact sphere "
+            f"(R = {float(profile.R):g} m): {limit:g} m, where the contact radius reaches "
+            f"{SPHERE_LIMIT} R (`SPHERE_LIMIT`); nearer the equator no half-space model holds."
+        )
 
 
 class ProfileValidity(eqx.Module):

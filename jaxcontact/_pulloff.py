@@ -55,6 +55,7 @@ from jaxtyping import ArrayLike, Float
 
 from ._arms import phi
 from ._method import AbstractMethod, DiffraxODE, ExactUpdate
+from ._probes import check_depth_limit, depth_limit
 from ._profiles import AbstractProfile, front_displacement
 from ._rheology import AbstractRheology
 from ._root import bracketed_root
@@ -172,6 +173,7 @@ def retract(
     scalars = _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius)
     for c in scalars:
         c.check()
+    check_depth_limit("depth", profile, depth)
     if contact_radius is not None and is_concrete(contact_radius) and is_concrete(profile):
         amax = profile.max_radius
         if bool(jnp.asarray(contact_radius) > amax):
@@ -218,6 +220,7 @@ def _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
     checks = [(domain_ok(rheology), RESULTS.invalid_rheology),
               (domain_ok(profile), RESULTS.invalid_profile)]
     checks += [(c.ok(), items[c.name]) for c in scalars]
+    checks.append((depth <= depth_limit(profile), RESULTS.invalid_depth))
     checks.append((times_ok(ts, require_nonnegative=velocity is not None),
                    RESULTS.invalid_times))
     if displacement is not None:

@@ -136,7 +136,9 @@ def test_sphere_limit_is_an_error_not_an_extrapolation():
     s = jc.Sphere(R)
     assert float(s.max_radius) == pytest.approx(jc.SPHERE_LIMIT * R)
     d_lim = sneddon_depth(jc.SPHERE_LIMIT * R, R)
-    with pytest.raises(ValueError, match="depth.*exceeds the limit of the exact sphere"):
+    np.testing.assert_allclose(jc.depth_limit(s), d_lim, rtol=1e-14)
+    assert np.isinf(jc.depth_limit(jc.Parabola(R)))
+    with pytest.raises(ValueError, match="depth.*beyond the limit of the exact sphere"):
         jc.profile_radius(s, 1.01 * d_lim)
     with pytest.raises(ValueError, match="contact radius"):
         jc.jkr_force(s, 0.97 * R, effective_modulus=E_STAR, work_of_adhesion=0.0)
@@ -259,10 +261,18 @@ def jkr_sphere_minimum(w, E, control):
 def test_retract_exact_sphere_relaxed_start_and_paraboloid_limit():
     s = jc.Sphere(R)
     d0 = sneddon_depth(0.7 * R, R)
+    d_small = 1e-3 * R  # a0 = 0.03 R
     ts = jnp.linspace(0.0, 4000.0, 200)
+    with pytest.raises(ValueError, match="depth.*beyond the limit of the exact sphere"):
+        jc.retract(RHEO, s, W_VISCO, ts, depth=2.0 * R, velocity=d0 / 2000.0)
+    # one compiled program, three lanes: deep, small, beyond the sphere's limit (2 R)
+    depth = jnp.array([d0, d_small, 2.0 * R])
+    w = jnp.array([W_VISCO, 1e-6, W_VISCO])
+    lanes = jax.vmap(lambda d, w_: jc.retract(RHEO, s, w_, ts, depth=d, velocity=d / 2000.0,
+                                              throw=False))(depth, w)
+    sol = jax.tree_util.tree_map(lambda x: x[0], lanes)
     # on the receding front F(a) is the JKR curve with E* = 4 G_inf and w G_g / G_inf, at
     # every speed (docs/physics.md section 4); slowly, F(d) too: the jump-off of rigid loading
-    sol = jc.retract(RHEO, s, W_VISCO, ts, depth=d0, velocity=d0 / 2000.0)
     w_eff = W_VISCO * G_GLASS / G_INF
     a_f, _, F_f = jkr_sphere_minimum(w_eff, 4 * G_INF, "force")
     assert 0.3 * R < a_f < 0.7 * R
@@ -272,65 +282,55 @@ def test_retract_exact_sphere_relaxed_start_and_paraboloid_limit():
     np.testing.assert_allclose(sol.details.fold_radius, a_d, rtol=1e-6)
     # the relaxed start: Sneddon's force with the relaxed modulus
     np.testing.assert_allclose(sol.force[0], sneddon_force(0.7 * R, R, 4 * G_INF), rtol=1e-10)
-    # small indentation (a0 = 0.03 R): the paraboloid's curve, to O((a/R)^2)
-    d_small = 1e-3 * R
-    small = jc.retract(RHEO, s, 1e-6, ts, depth=d_small, velocity=d_small / 2000.0)
+    # small indentation: the paraboloid's curve, to O((a/R)^2)
     para = jc.retract(RHEO, jc.Parabola(R), 1e-6, ts, depth=d_small, velocity=d_small / 2000.0)
     scale = float(jnp.max(jnp.abs(para.force)))
-    np.testing.assert_allclose(small.force, para.force, rtol=0, atol=2e-3 * scale)
-    np.testing.assert_allclose(small.max_tensile_force, para.max_tensile_force, rtol=2e-3)
-    assert float(jnp.max(jnp.abs(small.force - para.force))) > 1e-6 * scale  # not the same
-    # beyond the sphere's limit: flagged per lane, not extrapolated
-    bad = jc.retract(RHEO, s, W_VISCO, ts, depth=2.0 * R, velocity=d0 / 2000.0, throw=False)
-    assert bad.result != jc.RESULTS.detached and bool(jnp.all(jnp.isnan(bad.force)))
+    np.testing.assert_allclose(lanes.force[1], para.force, rtol=0, atol=2e-3 * scale)
+    np.testing.assert_allclose(lanes.max_tensile_force[1], para.max_tensile_force, rtol=2e-3)
+    assert float(jnp.max(jnp.abs(lanes.force[1] - para.force))) > 1e-6 * scale  # not equal
+    # beyond the sphere's limit: flagged, not extrapolated
+    assert int(lanes.result._value[2]) == int(jc.RESULTS.invalid_depth._value)
+    assert bool(jnp.all(jnp.isnan(lanes.force[2])))
 
 
 def test_simulate_exact_sphere_long_hold_and_paraboloid_limit():
     s = jc.Sphere(R)
-    t_app, t_hold, v = 1.0, 30.0, 1.0  # approach 1 s, hold 30 tau, lift over 60 s
+    t_app, t_hold = 1.0, 30.0  # approach 1 s, hold 30 tau, lift over 60 s (to -d0)
     ts = jnp.concatenate([jnp.linspace(0.0, t_app, 20, endpoint=False),
                           jnp.linspace(t_app, t_app + t_hold, 20, endpoint=False),
-                          jnp.linspace(t_app + t_hold, t_app + t_hold + 60 * v, 161)])
+                          jnp.linspace(t_app + t_hold, t_app + t_hold + 60.0, 161)])
 
     def history(d0):
         up = d0 * ts / t_app
         down = d0 - d0 * (ts - t_app - t_hold) / 30.0
         return jnp.where(ts < t_app, up, jnp.where(ts < t_app + t_hold, d0, down))
 
-    d0 = sneddon_depth(0.6 * R, R)
-    sol = jc.simulate(RHEO, s, W_VISCO, ts, history(d0), grid=64)
+    with pytest.raises(ValueError, match="displacement.*beyond the limit of the exact sphere"):
+        jc.simulate(RHEO, s, W_VISCO, ts, history(2.0 * R), grid=64)
+    # one compiled program, three lanes: deep, small, beyond the sphere's limit
+    d0, d_small = sneddon_depth(0.6 * R, R), 1e-3 * R
+    lanes = jax.vmap(lambda d, w_: jc.simulate(RHEO, s, w_, ts, history(d), grid=64,
+                                               throw=False))(
+        jnp.array([d0, d_small, 2.0 * R]), jnp.array([W_VISCO, 1e-6, W_VISCO]))
     # after the long hold: relaxed, Sneddon's force with G_inf, and the lift's tensile
     # minimum on the relaxed-start JKR curve (the same as `retract`)
     end_hold = int(np.searchsorted(np.asarray(ts), t_app + t_hold)) - 1
-    np.testing.assert_allclose(sol.force[end_hold], sneddon_force(0.6 * R, R, 4 * G_INF),
+    np.testing.assert_allclose(lanes.force[0, end_hold], sneddon_force(0.6 * R, R, 4 * G_INF),
                                rtol=1e-2)
     _, _, F_f = jkr_sphere_minimum(W_VISCO * G_GLASS / G_INF, 4 * G_INF, "force")
-    np.testing.assert_allclose(sol.max_tensile_force, F_f, rtol=2e-2)
+    np.testing.assert_allclose(lanes.max_tensile_force[0], F_f, rtol=2e-2)
     # small indentation: the paraboloid's closed-form relaxed-start curve (`retract`)
-    d_small = 1e-3 * R
-    small = jc.simulate(RHEO, s, 1e-6, ts, history(d_small), grid=64)
     lift = np.asarray(ts) >= t_app + t_hold
     para = jc.retract(RHEO, jc.Parabola(R), 1e-6, ts[lift] - (t_app + t_hold),
                       depth=d_small, velocity=d_small / 30.0)
     scale = float(jnp.max(jnp.abs(para.force)))
-    np.testing.assert_allclose(small.force[lift], para.force, rtol=0, atol=2e-2 * scale)
-
-
-def test_sweep_exact_sphere_against_closed_form_and_limit():
-    # elastic (G_inf alone): the max tensile force is the exact-sphere JKR minimum under
-    # force control, the jump-off the minimum of d(a); the deepest point is beyond the
-    # sphere's limit (d > 1.74 R) and flagged, not extrapolated
-    G, w = 1e3, 1e-3
-    depths = np.array([0.3, 0.8, 1.2, 2.0]) * R
-    ds = jc.sweep({"G_inf": G, "work_of_adhesion": w, "sphere_radius": R, "depth": depths,
-                   "velocity": 1e-6}, model=jc.RelaxedStart(samples=20), progress=False)
-    status = ds.status.values
-    assert (status[:3] == int(jc.RESULTS.detached._value)).all()
-    assert status[3] != int(jc.RESULTS.detached._value) and np.isnan(ds.max_tensile_force_N[3])
-    _, _, F_f = jkr_sphere_minimum(w, 4 * G, "force")
-    _, _, F_d = jkr_sphere_minimum(w, 4 * G, "displacement")
-    np.testing.assert_allclose(ds.max_tensile_force_N.values[:3], F_f, rtol=1e-8)
-    np.testing.assert_allclose(ds.jumpoff_force_N.values[:3], F_d, rtol=1e-8)
+    np.testing.assert_allclose(lanes.force[1][lift], para.force, rtol=0, atol=2e-2 * scale)
+    # beyond the limit: flagged per lane
+    codes = [int(c) for c in lanes.result._value]
+    assert codes[2] == int(jc.RESULTS.invalid_displacement._value)
+    ok = {int(jc.RESULTS.in_contact._value), int(jc.RESULTS.detached._value)}
+    assert codes[0] in ok and codes[1] in ok
+    assert bool(jnp.all(jnp.isnan(lanes.force[2])))
 
 
 # --------------------------------------------------------------------------------------

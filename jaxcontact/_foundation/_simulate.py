@@ -10,6 +10,7 @@ from jax import lax
 from jaxtyping import ArrayLike, Float
 
 from .._method import AbstractMethod, ExactUpdate
+from .._probes import check_depth_limit, depth_limit
 from .._profiles import AbstractProfile
 from .._rheology import AbstractRheology
 from .._solution import (
@@ -136,6 +137,8 @@ def simulate(
             f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {u.shape}."
         )
     check_finite("displacement", u, "m")
+    if isinstance(loading, DisplacementControl):
+        check_depth_limit("displacement", profile, u)
     check_plausibility = plausibility_enabled()
     if check_plausibility:
         for obj in (rheology, profile, loading, grid):
@@ -187,6 +190,8 @@ def _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
         (domain_ok(loading), RESULTS.invalid_loading),
         (domain_ok(grid), RESULTS.invalid_depth),
     ]
+    if isinstance(loading, DisplacementControl):  # the exact sphere's limit
+        checks.insert(5, (jnp.max(u) <= depth_limit(profile), RESULTS.invalid_displacement))
     if check_plausibility:
         ok = domain_plausible(rheology) & domain_plausible(profile)
         ok = ok & domain_plausible(loading) & domain_plausible(grid)

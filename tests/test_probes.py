@@ -370,3 +370,20 @@ def test_bem_of_the_real_pyramid_against_the_equivalent_cone(sides):
     edge = math.atan(math.tan(alpha) / math.cos(math.pi / sides))
     np.testing.assert_allclose(jc.pyramid_heights(grid, edge, sides, angle="edge"),
                                jc.pyramid_heights(grid, alpha, sides), rtol=1e-13)
+
+
+def test_sphere_gradients_against_finite_differences():
+    # implicit differentiation through the sphere's roots (critical radius, front radius)
+    s = jc.Sphere(R)
+
+    def pull(w):
+        return jc.pull_off(s, effective_modulus=E_STAR, work_of_adhesion=w,
+                           control="force").force
+
+    def radius(d):
+        return jc.jkr_contact_radius(s, d, effective_modulus=E_STAR, work_of_adhesion=1.5e-3)
+
+    for fn, x in [(pull, 1.5e-3), (radius, 0.3 * R)]:
+        h = 1e-6 * x
+        fd = (float(fn(x + h)) - float(fn(x - h))) / (2 * h)
+        np.testing.assert_allclose(jax.grad(fn)(x), fd, rtol=1e-6)

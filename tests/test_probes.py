@@ -19,7 +19,8 @@ FRACTIONS = np.array([0.05, 0.2, 0.4, 0.6, 0.8, 0.9])
 
 
 def sneddon_depth(a, R):
-    return 0.5 * a * np.log((R + a) / (R - a))
+    # (a/2) ln((R+a)/(R-a)), written with log1p: accurate also for a << R
+    return 0.5 * a * np.log1p(2 * a / (R - a))
 
 
 def sneddon_force(a, R, E):
@@ -66,6 +67,9 @@ def test_sphere_small_contacts_are_the_paraboloid():
         np.testing.assert_allclose(s.g(a), a * a / R * (1 + f**2 / 3 + f**4 / 5 + f**6 / 7
                                                          + f**8 / 9 + f**10 / 11),
                                    rtol=1e-6 * f**2 + 1e-15)
+    # the inverse over the whole range, t tanh t = d/R on its bracket (1e-6 R to the limit)
+    f = np.array([1e-6, 1e-3, 0.1, 0.5, 0.9, 0.9499])
+    np.testing.assert_allclose(s.contact_radius(sneddon_depth(f * R, R)) / R, f, rtol=1e-12)
 
 
 def test_sneddon_sphere_depth_and_force():

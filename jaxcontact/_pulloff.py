@@ -122,7 +122,8 @@ def retract(
 
     - `rheology`: any rheology (`StandardModel`, `CreepChain`, `PronySeries`, `Elastic`);
       shear moduli of an incompressible half-space, foundation stiffness $4G$ per length.
-    - `profile`: any profile (`Parabola`, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`).
+    - `profile`: any profile (`Sphere`, `Parabola`, `Cone`, `PowerLaw`, `FlatPunch`,
+      `Tabulated`).
     - `work_of_adhesion`: $\Delta\gamma$ [J/m²], > 0.
     - `ts`: sample times [s], shape `(n,)`, non-decreasing; $t = 0$ is the start of the lift
       (>= 0 with `velocity`).
@@ -130,7 +131,8 @@ def retract(
       linear between samples, and a step from $d_0$ at `ts[0]` if
       `displacement[0] != depth`. Give exactly one of `displacement` and `velocity`.
     - `depth`: relaxed indentation $d_0$ [m], > 0 (positive into the sample). With
-      `displacement` it defaults to `displacement[0]`.
+      `displacement` it defaults to `displacement[0]`. At most `depth_limit(profile)` (the
+      exact `Sphere`: 1.74 R; no limit for the other profiles).
     - `velocity`: lift speed $v$ [m/s], > 0: $d(t) = d_0 - v t$.
     - `contact_radius`: contact radius $a_0$ [m] of the relaxed state (default: $g(a_0) = d_0$,
       the non-adhesive radius; a larger, adhesive radius is allowed, up to the profile's

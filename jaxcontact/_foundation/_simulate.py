@@ -66,7 +66,9 @@ def simulate(
     - `rheology`: any rheology (`StandardModel`, `CreepChain`, `PronySeries`, `Elastic`);
       shear moduli [Pa] of an incompressible half-space (foundation stiffness $4G$ per
       length).
-    - `profile`: any profile (`Parabola`, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`).
+    - `profile`: any profile (`Sphere`, `Parabola`, `Cone`, `PowerLaw`, `FlatPunch`,
+      `Tabulated`); with `Sphere` and displacement control the displacement may not exceed
+      its `depth_limit` (1.74 R).
     - `work_of_adhesion`: $\Delta\gamma$ [J/m²], > 0.
     - `ts`: sample times [s], shape `(n,)`, non-decreasing (equal times give a jump).
     - `displacement`: the input at `ts` [m], shape `(n,)`: the indentation $d(t)$ (positive

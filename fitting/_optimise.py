@@ -531,7 +531,7 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
         aic=ll + 2 * k, bic=ll + k * math.log(n), converged=bool(ok_all[best]),
         start_losses=chi2_all,
         spec=spec, data=data, curves=curves, profile=profile,
-        radius=float(profile.R) if isinstance(profile, jc.Parabola) else None,
+        radius=float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None,
         model_solution=sol, model_force=model_force,
         fitted_force=np.asarray(fitted_force), in_contact=in_contact,
         parameterisation=param, optimiser=optimiser, start_steps=steps_all,

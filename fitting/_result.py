@@ -49,7 +49,7 @@ class FitResult:
     candidates of ``rheology="auto"``, else empty).
 
     **Data and model:** `spec`, `data` (the `CurveBatch` fitted), `curves`, `profile`,
-    `radius` (for a parabola), `model_solution` (batched `ContactSolution` at the optimum),
+    `radius` (of a parabola or sphere), `model_solution` (batched `ContactSolution` at the optimum),
     `model_force` (the model's force at the sample times [N], force offset included; $R^2$
     uses it), `fitted_force` (the same with the jump-off resolved inside its sample
     interval, as the residuals use it; :mod:`fitting._objective`), `in_contact` (the samples

@@ -140,7 +140,8 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
                 g0_est = max(g0_est, _hertz_modulus(float(fh[0]),
                                                     float(np.max(c.displacement[h])),
                                                     profile)[0])
-        rad = float(profile.R) if isinstance(profile, jc.Parabola) else a0 * a0 / depth
+        rad = (float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere)
+               else a0 * a0 / depth)
         fmin = float(np.min(f))
         dg.append(max(abs(fmin), 1e-3 * float(np.ptp(c.force))) * g_h
                   / (1.5 * math.pi * rad * g0_est))

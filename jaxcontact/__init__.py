@@ -41,6 +41,17 @@ from ._criteria import critical_elongation as critical_elongation  # noqa: E402
 from ._criteria import critical_line_load as critical_line_load  # noqa: E402
 from ._criteria import hess_elongation as hess_elongation  # noqa: E402
 from ._tabulated import Tabulated as Tabulated  # noqa: E402
+from ._probes import Sphere as Sphere  # noqa: E402
+from ._probes import SPHERE_LIMIT as SPHERE_LIMIT  # noqa: E402
+from ._probes import PARABOLA_LIMIT as PARABOLA_LIMIT  # noqa: E402
+from ._probes import PYRAMID_FACTORS as PYRAMID_FACTORS  # noqa: E402
+from ._probes import pyramid as pyramid  # noqa: E402
+from ._probes import pyramid_cone_angle as pyramid_cone_angle  # noqa: E402
+from ._probes import tabor_parameter as tabor_parameter  # noqa: E402
+from ._probes import TABOR_SEPARATION as TABOR_SEPARATION  # noqa: E402
+from ._probes import ProfileValidity as ProfileValidity  # noqa: E402
+from ._probes import profile_validity as profile_validity  # noqa: E402
+from ._probes import depth_limit as depth_limit  # noqa: E402
 from ._rheology import AbstractRheology as AbstractRheology  # noqa: E402
 from ._rheology import CreepChain as CreepChain  # noqa: E402
 from ._rheology import Elastic as Elastic  # noqa: E402
@@ -78,6 +89,7 @@ from ._bem import bem_heights as bem_heights  # noqa: E402
 from ._bem import bem_simulate as bem_simulate  # noqa: E402
 from ._bem import ellipsoid_heights as ellipsoid_heights  # noqa: E402
 from ._bem import love_displacement as love_displacement  # noqa: E402
+from ._bem import pyramid_heights as pyramid_heights  # noqa: E402
 from ._bem import self_affine_heights as self_affine_heights  # noqa: E402
 from ._bem import tilted_flat_heights as tilted_flat_heights  # noqa: E402
 from ._sweep import AbstractSweepModel as AbstractSweepModel  # noqa: E402

@@ -114,6 +114,7 @@ __all__ = [
     "bem_simulate",
     "ellipsoid_heights",
     "love_displacement",
+    "pyramid_heights",
     "self_affine_heights",
     "tilted_flat_heights",
 ]
@@ -446,14 +447,40 @@ _FAR = 1e3  # heights outside a punch: this many grid extents (never touched)
 def bem_heights(profile: AbstractProfile, grid: BEMGrid) -> Float[Array, "n n"]:
     r"""Height map [m] of an axisymmetric profile on the grid: $h_{ij} = f(r_{ij})$.
 
-    Works with every `AbstractProfile` (`Parabola` gives the sphere in the paraboloid
-    approximation, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`). Heights outside a flat
-    punch (infinite) are replaced by a large finite value so that the solver never touches
-    them.
+    Works with every `AbstractProfile` (`Sphere` the exact spherical cap, `Parabola` the
+    sphere in the paraboloid approximation, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`).
+    Heights outside a flat punch or beyond a sphere's equator (infinite) are replaced by a
+    large finite value so that the solver never touches them. A pyramid's true (not
+    axisymmetric) height map is `pyramid_heights`.
     """
     x, y = grid.coordinates()
     h = profile.shape(jnp.sqrt(x * x + y * y))
     return jnp.where(jnp.isfinite(h), h, _FAR * as_float(grid.extent))
+
+
+def pyramid_heights(
+    grid: BEMGrid, half_angle: float, sides: int = 4, angle: str = "face"
+) -> Float[Array, "n n"]:
+    r"""A regular 3- or 4-sided pyramid with its apex at the centre [m], lowest point 0.
+
+    $h(x, y) = \cot\alpha\,\max_k (x\cos\theta_k + y\sin\theta_k)$ over the face normals
+    $\theta_k = 2\pi k/n$, with $\alpha$ the half-angle [rad] between the axis and a face
+    (`angle="face"`) or an edge (`angle="edge"`: $\tan\alpha_\mathrm{face} =
+    \cos(\pi/n)\tan\alpha_\mathrm{edge}$). The axisymmetric models use its equivalent
+    cone (`jaxcontact.pyramid`); this is the real shape for the BEM.
+    """
+    if sides not in (3, 4):
+        raise ValueError(f"`sides` must be 3 or 4; got {sides!r}.")
+    if angle not in ("face", "edge"):
+        raise ValueError(f"`angle` must be 'face' or 'edge'; got {angle!r}.")
+    check_positive("half_angle", half_angle, "rad", upper=float(np.pi / 2))
+    tan_face = jnp.tan(as_float(half_angle))
+    if angle == "edge":
+        tan_face = tan_face * float(np.cos(np.pi / sides))
+    x, y = grid.coordinates()
+    theta = 2 * np.pi * np.arange(sides) / sides
+    proj = jnp.stack([x * float(np.cos(t)) + y * float(np.sin(t)) for t in theta])
+    return jnp.max(proj, axis=0) / tan_face
 
 
 def ellipsoid_heights(

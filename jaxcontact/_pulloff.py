@@ -55,6 +55,7 @@ from jaxtyping import ArrayLike, Float
 
 from ._arms import phi
 from ._method import AbstractMethod, DiffraxODE, ExactUpdate
+from ._probes import check_depth_limit, depth_limit
 from ._profiles import AbstractProfile, front_displacement
 from ._rheology import AbstractRheology
 from ._root import bracketed_root
@@ -122,7 +123,8 @@ def retract(
 
     - `rheology`: any rheology (`StandardModel`, `CreepChain`, `PronySeries`, `Elastic`);
       shear moduli of an incompressible half-space, foundation stiffness $4G$ per length.
-    - `profile`: any profile (`Parabola`, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`).
+    - `profile`: any profile (`Sphere`, `Parabola`, `Cone`, `PowerLaw`, `FlatPunch`,
+      `Tabulated`).
     - `work_of_adhesion`: $\Delta\gamma$ [J/m²], > 0.
     - `ts`: sample times [s], shape `(n,)`, non-decreasing; $t = 0$ is the start of the lift
       (>= 0 with `velocity`).
@@ -130,7 +132,8 @@ def retract(
       linear between samples, and a step from $d_0$ at `ts[0]` if
       `displacement[0] != depth`. Give exactly one of `displacement` and `velocity`.
     - `depth`: relaxed indentation $d_0$ [m], > 0 (positive into the sample). With
-      `displacement` it defaults to `displacement[0]`.
+      `displacement` it defaults to `displacement[0]`. At most `depth_limit(profile)` (the
+      exact `Sphere`: 1.74 R; no limit for the other profiles).
     - `velocity`: lift speed $v$ [m/s], > 0: $d(t) = d_0 - v t$.
     - `contact_radius`: contact radius $a_0$ [m] of the relaxed state (default: $g(a_0) = d_0$,
       the non-adhesive radius; a larger, adhesive radius is allowed, up to the profile's
@@ -173,6 +176,7 @@ def retract(
     scalars = _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius)
     for c in scalars:
         c.check()
+    check_depth_limit("depth", profile, depth)
     if contact_radius is not None and is_concrete(contact_radius) and is_concrete(profile):
         amax = profile.max_radius
         if bool(jnp.asarray(contact_radius) > amax):
@@ -219,6 +223,7 @@ def _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
     checks = [(domain_ok(rheology), RESULTS.invalid_rheology),
               (domain_ok(profile), RESULTS.invalid_profile)]
     checks += [(c.ok(), items[c.name]) for c in scalars]
+    checks.append((depth <= depth_limit(profile), RESULTS.invalid_depth))
     checks.append((times_ok(ts, require_nonnegative=velocity is not None),
                    RESULTS.invalid_times))
     if displacement is not None:

@@ -52,17 +52,23 @@ class RESULTS(eqx.Enumeration):
     invalid_profile = (
         "A parameter of the profile is outside its domain: Parabola `R` finite and > 0 [m]; "
         "Cone `half_angle` in (0, pi/2) [rad]; PowerLaw `c` finite and > 0, `n` finite and "
-        "> 1/2; FlatPunch `radius` finite and > 0 [m]; Tabulated `r` [m] finite, from 0, "
-        "strictly increasing, `f` [m] finite."
+        "> 1/2; FlatPunch `radius` and Sphere `R` finite and > 0 [m]; Tabulated `r` [m] "
+        "finite, from 0, strictly increasing, `f` [m] finite."
     )
     invalid_work_of_adhesion = "`work_of_adhesion` must be finite and > 0 [J/m^2]."
-    invalid_depth = "`depth` (the relaxed indentation) must be finite and > 0 [m]."
+    invalid_depth = (
+        "`depth` (the relaxed indentation) must be finite and > 0 [m], and for the exact "
+        "`Sphere` at most `depth_limit` (1.74 R: the contact radius reaches 0.95 R)."
+    )
     invalid_velocity = "`velocity` must be finite and > 0 [m/s]."
     invalid_times = (
         "`ts` [s] must be finite and non-decreasing (and >= 0 with `velocity`: t = 0 is the "
         "start of the lift)."
     )
-    invalid_displacement = "`displacement` [m] must be finite."
+    invalid_displacement = (
+        "`displacement` [m] must be finite (and for the exact `Sphere` under displacement "
+        "control at most `depth_limit`, 1.74 R)."
+    )
     invalid_contact_radius = (
         "`contact_radius` must be finite, > 0 and at most the profile's `max_radius` [m]."
     )

@@ -91,13 +91,20 @@ def parse_assignments(option: str, items, *, ranges: bool = False) -> dict:
 def parse_profile(spec: str | None, radius: float | None):
     """The indenter of ``--profile`` / ``--radius`` as a jaxcontact profile.
 
-    ``sphere:R`` (parabola of radius R [m]), ``cone:DEG`` (half-opening angle [degrees]),
-    ``flat:A`` (flat punch of radius A [m]), ``power:C,N`` (f = C r^N, C in m^(1-N)).
-    ``--radius R`` alone is ``sphere:R``; giving both is an error (they could disagree).
-    Returns ``(profile, radius_or_None)``.
+    ``sphere:R`` (the exact sphere of radius R [m], `jc.Sphere`), ``paraboloid:R``
+    (paraboloid of radius of curvature R [m], the small-indentation sphere, `jc.Parabola`),
+    ``cone:DEG`` (half-opening angle [degrees]), ``pyramid4:DEG[,face|edge]`` and
+    ``pyramid3:DEG[,face|edge]`` (regular 4- or 3-sided pyramid by its half-angle [degrees]
+    to a face (default) or an edge, as the equivalent cone, `jc.pyramid`), ``flat:A`` (flat
+    punch of radius A [m]), ``power:C,N`` (f = C r^N, C in m^(1-N)).
+    ``--radius R`` alone is ``paraboloid:R`` (as before the exact sphere existed, so that
+    earlier results are reproduced); giving both is an error (they could disagree).
+    Returns ``(profile, radius_or_None)``: the radius only for the paraboloid.
     """
     import jaxcontact as jc
 
+    shapes = ("sphere:R, paraboloid:R, cone:DEG, pyramid4:DEG[,face|edge], "
+              "pyramid3:DEG[,face|edge], flat:A or power:C,N")
     if spec is None:
         if radius is None:
             raise UsageError("argument --radius/--profile: give the indenter, e.g. "
@@ -108,24 +115,36 @@ def parse_profile(spec: str | None, radius: float | None):
                              "(lengths are in metres, e.g. 5e-6 for 5 µm)")
         return jc.Parabola(R=float(radius)), float(radius)
     if radius is not None:
-        raise UsageError("argument --radius: not together with --profile (use sphere:R)")
+        raise UsageError("argument --radius: not together with --profile (use paraboloid:R "
+                         "or sphere:R)")
     kind, _, rest = spec.partition(":")
+    tokens = rest.split(",") if rest else []
+    angle = "face"
+    if kind in ("pyramid3", "pyramid4") and len(tokens) == 2 and tokens[1].strip() in (
+            "face", "edge"):
+        angle = tokens.pop().strip()
     try:
-        vals = [float(x) for x in rest.split(",")] if rest else []
+        vals = [float(x) for x in tokens]
     except ValueError:
         raise UsageError(f"argument --profile: bad numbers in {spec!r}") from None
-    want = {"sphere": 1, "cone": 1, "flat": 1, "power": 2}
+    want = {"sphere": 1, "paraboloid": 1, "cone": 1, "pyramid3": 1, "pyramid4": 1, "flat": 1,
+            "power": 2}
     if kind not in want:
-        raise UsageError(f"argument --profile: unknown shape {kind!r}; use sphere:R, cone:DEG, "
-                         "flat:A or power:C,N")
+        raise UsageError(f"argument --profile: unknown shape {kind!r}; use {shapes}")
     if len(vals) != want[kind]:
         raise UsageError(f"argument --profile: {kind} takes {want[kind]} number(s); got {spec!r}")
     if kind == "sphere":
         check_number("--profile sphere:R", vals[0], "m", high=1.0)
+        return jc.Sphere(R=vals[0]), None
+    if kind == "paraboloid":
+        check_number("--profile paraboloid:R", vals[0], "m", high=1.0)
         return jc.Parabola(R=vals[0]), vals[0]
     if kind == "cone":
         check_number("--profile cone:DEG", vals[0], "degrees", high=89.9)
         return jc.Cone(half_angle=math.radians(vals[0])), None
+    if kind in ("pyramid3", "pyramid4"):
+        check_number(f"--profile {kind}:DEG", vals[0], "degrees", high=89.9)
+        return jc.pyramid(math.radians(vals[0]), sides=int(kind[-1]), angle=angle), None
     if kind == "flat":
         check_number("--profile flat:A", vals[0], "m", high=1.0)
         return jc.FlatPunch(radius=vals[0]), None

@@ -73,11 +73,16 @@ def add_fit_arguments(parser):
                         help="curves: CSV/TSV (time_s,displacement_m,force_N; units in the "
                              "header or --units) or AFM instrument files (afmformats)")
     parser.add_argument("--radius", type=float, default=None, metavar="M",
-                        help="radius of curvature of a spherical (parabolic) indenter [m]; "
-                             "same as --profile sphere:M")
+                        help="radius of curvature of a spherical indenter [m] in the "
+                             "paraboloid (small-indentation) approximation: the same as "
+                             "--profile paraboloid:M (kept so that earlier results reproduce); "
+                             "for the exact sphere give --profile sphere:M")
     parser.add_argument("--profile", default=None, metavar="SHAPE",
-                        help="indenter: sphere:R [m], cone:DEG (half-opening angle, degrees), "
-                             "flat:A (punch radius [m]) or power:C,N (f = C r^N)")
+                        help="indenter: sphere:R (exact sphere [m]), paraboloid:R [m], "
+                             "cone:DEG (half-opening angle, degrees), pyramid4:DEG[,face|edge] "
+                             "or pyramid3:DEG[,face|edge] (half-angle to a face (default) or "
+                             "an edge, degrees: the equivalent cone), flat:A (punch radius "
+                             "[m]) or power:C,N (f = C r^N)")
     parser.add_argument("--model", choices=("relaxed", "history"), default="history",
                         help="history: the whole approach-hold-lift (default); relaxed: the "
                              "retract after a hold long enough to relax")

@@ -51,7 +51,8 @@ def add_material_arguments(p, *, radius_required: bool = True) -> None:
     p.add_argument("--eta1", type=float, required=True, help="Kelvin-element viscosity [Pa s]")
     p.add_argument("--work-of-adhesion", type=float, required=True, help="Δγ [J/m^2]")
     p.add_argument("--radius", type=float, required=radius_required,
-                   help="indenter radius of curvature R [m]")
+                   help="indenter radius of curvature R [m] (a paraboloid, the sphere "
+                        "at small indentation)")
     p.add_argument("--depth", type=float, required=True, help="indentation before the lift [m]")
     p.add_argument("--velocity", type=float, required=True, help="lift speed [m/s], > 0")
     p.add_argument("--hold", type=float, default=None, help="hold at --depth [s] (full history)")

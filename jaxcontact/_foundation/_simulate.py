@@ -10,6 +10,7 @@ from jax import lax
 from jaxtyping import ArrayLike, Float
 
 from .._method import AbstractMethod, ExactUpdate
+from .._probes import check_depth_limit, depth_limit
 from .._profiles import AbstractProfile
 from .._rheology import AbstractRheology
 from .._solution import (
@@ -65,7 +66,9 @@ def simulate(
     - `rheology`: any rheology (`StandardModel`, `CreepChain`, `PronySeries`, `Elastic`);
       shear moduli [Pa] of an incompressible half-space (foundation stiffness $4G$ per
       length).
-    - `profile`: any profile (`Parabola`, `Cone`, `PowerLaw`, `FlatPunch`, `Tabulated`).
+    - `profile`: any profile (`Sphere`, `Parabola`, `Cone`, `PowerLaw`, `FlatPunch`,
+      `Tabulated`); with `Sphere` and displacement control the displacement may not exceed
+      its `depth_limit` (1.74 R).
     - `work_of_adhesion`: $\Delta\gamma$ [J/m²], > 0.
     - `ts`: sample times [s], shape `(n,)`, non-decreasing (equal times give a jump).
     - `displacement`: the input at `ts` [m], shape `(n,)`: the indentation $d(t)$ (positive
@@ -136,6 +139,8 @@ def simulate(
             f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {u.shape}."
         )
     check_finite("displacement", u, "m")
+    if isinstance(loading, DisplacementControl):
+        check_depth_limit("displacement", profile, u)
     check_plausibility = plausibility_enabled()
     if check_plausibility:
         for obj in (rheology, profile, loading, grid):
@@ -187,6 +192,8 @@ def _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
         (domain_ok(loading), RESULTS.invalid_loading),
         (domain_ok(grid), RESULTS.invalid_depth),
     ]
+    if isinstance(loading, DisplacementControl):  # the exact sphere's limit
+        checks.insert(5, (jnp.max(u) <= depth_limit(profile), RESULTS.invalid_displacement))
     if check_plausibility:
         ok = domain_plausible(rheology) & domain_plausible(profile)
         ok = ok & domain_plausible(loading) & domain_plausible(grid)

@@ -6,7 +6,9 @@ units in which a point is computed.
 - material (one family): `G0`, `G1`, `eta1`, the standard model in creep form
   (`StandardModel`); or `G_inf` with arms `G_1`, `tau_1`, ..., `G_N`, `tau_N`, a Prony series
   (`PronySeries`; `G_inf` alone is an elastic solid);
-- indenter (one): `R`, paraboloid (`Parabola`); `half_angle` [rad], cone (`Cone`);
+- indenter (one): `R`, paraboloid (`Parabola`); `sphere_radius`, the exact sphere
+  (`Sphere`, contact radii up to 0.95 of it: a deeper point is flagged); `half_angle`
+  [rad], cone (`Cone`; a pyramid as its equivalent cone: `pyramid_cone_angle`);
   `punch_radius`, flat punch (`FlatPunch`);
 - adhesion: `work_of_adhesion` $\Delta\gamma$;
 - protocol: `depth` $d_0$, `velocity` $v$ (lift speed); with `ApproachHoldLift` also `hold`
@@ -32,6 +34,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
+from .._probes import Sphere
 from .._profiles import Cone, FlatPunch, Parabola
 from .._rheology import PronySeries, StandardModel
 
@@ -56,6 +59,7 @@ _FIXED = {
     "eta1": Parameter("eta1", "Pa s", "viscosity", "Kelvin-element viscosity eta1"),
     "G_inf": Parameter("G_inf", "Pa", "modulus", "relaxed shear modulus G_inf (Prony series)"),
     "R": Parameter("R", "m", "length", "indenter radius of curvature R (paraboloid)"),
+    "sphere_radius": Parameter("sphere_radius", "m", "length", "exact sphere radius R"),
     "half_angle": Parameter("half_angle", "rad", "angle", "cone half-opening angle",
                             upper=math.pi / 2),
     "punch_radius": Parameter("punch_radius", "m", "length", "flat punch radius"),
@@ -147,6 +151,8 @@ class _ProfileFamily:
         value = p[self.name]
         if self.name == "R":
             return Parabola(R=value)
+        if self.name == "sphere_radius":
+            return Sphere(R=value)
         if self.name == "half_angle":
             return Cone(half_angle=value)
         return FlatPunch(radius=value)
@@ -185,11 +191,12 @@ def _material_family(names):
 
 
 def _profile_family(names):
-    given = [n for n in ("R", "half_angle", "punch_radius") if n in names]
+    given = [n for n in ("R", "sphere_radius", "half_angle", "punch_radius") if n in names]
     if len(given) != 1:
         raise ValueError(
-            "give exactly one indenter parameter: R [m] (paraboloid), half_angle [rad] (cone) "
-            f"or punch_radius [m] (flat punch); got {given or 'none'}."
+            "give exactly one indenter parameter: R [m] (paraboloid), sphere_radius [m] (exact "
+            "sphere), half_angle [rad] (cone) or punch_radius [m] (flat punch); got "
+            f"{given or 'none'}."
         )
     return _ProfileFamily(given[0])
 

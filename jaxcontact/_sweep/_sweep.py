@@ -105,9 +105,10 @@ def sweep(
 
     Parameter names (SI units; see `jaxcontact._sweep._parameters`): the material `G0`,
     `G1`, `eta1` (standard model) or `G_inf`, `G_1`, `tau_1`, ... (Prony series; `G_inf`
-    alone: elastic); the indenter `R` (paraboloid), `half_angle` [rad] (cone) or
-    `punch_radius` (flat punch); `work_of_adhesion`, `depth`, `velocity` (lift speed); with
-    `ApproachHoldLift` also `hold` and `approach_velocity` (default `velocity`).
+    alone: elastic); the indenter `R` (paraboloid), `sphere_radius` (exact sphere),
+    `half_angle` [rad] (cone) or `punch_radius` (flat punch); `work_of_adhesion`, `depth`,
+    `velocity` (lift speed); with `ApproachHoldLift` also `hold` and `approach_velocity`
+    (default `velocity`).
 
     **Returns:** an `xarray.Dataset` with a coordinate per parameter (`units` and
     `long_name` attributes; fixed parameters as scalar coordinates) and, per point,

@@ -1,0 +1,387 @@
+r"""The probes of AFM practice: the exact sphere, pyramidal tips, and the validity of a contact.
+
+- `Sphere(R)`: the exact spherical cap $f(r) = R - \sqrt{R^2 - r^2}$, whose MDR profile is
+  $g(x) = x\,\operatorname{artanh}(x/R) = \frac{x}{2}\ln\frac{R+x}{R-x}$ (the non-adhesive
+  solution of Sneddon 1965); `Parabola(R)` is its small-indentation limit.
+- `pyramid(half_angle, sides=4, angle="face")`: a regular 3- or 4-sided pyramid as the
+  axisymmetric cone that gives the same non-adhesive force (the factors of Bilodeau 1992 and
+  nanite's three-sided model; `docs/physics.md` §10).
+- `tabor_parameter`: Tabor's parameter of the JKR limit the model assumes.
+- `profile_validity`: how far a contact radius lies inside the range where a profile is a
+  faithful model of the probe it stands for.
+
+Signs and units as everywhere: SI, indentation positive into the sample.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._profiles import (
+    AbstractCurvedProfile,
+    AbstractProfile,
+    Cone,
+    FlatPunch,
+    Parabola,
+    PowerLaw,
+    numerical_contact_radius,
+    numerical_front_radius,
+    numerical_stationary_radius,
+)
+from ._root import bracketed_root
+from ._solvers import as_float
+from ._validate import Constraint, guarded, is_concrete
+
+__all__ = [
+    "Sphere",
+    "SPHERE_LIMIT",
+    "PYRAMID_FACTORS",
+    "pyramid",
+    "pyramid_cone_angle",
+    "tabor_parameter",
+    "TABOR_SEPARATION",
+    "ProfileValidity",
+    "profile_validity",
+    "PARABOLA_LIMIT",
+    "depth_limit",
+]
+
+#: The largest contact radius of `Sphere`, as a fraction of $R$: at $a = 0.95R$ the
+#: indentation is already $d = 1.74R$ (the contact reaches within 5 % of the equator, where
+#: the surface is nearly vertical and no half-space model holds); $g$ diverges as
+#: $a \to R$, so any larger radius would be an extrapolation of the geometry.
+SPHERE_LIMIT = 0.95
+
+#: Contact radius (fraction of $R$) up to which `Parabola(R)` stands for a sphere: at
+#: $a = 0.3R$ the paraboloid's force at the same indentation is 0.9 % above the exact
+#: sphere's (Sneddon), at $a = 0.5R$ 2.8 %, at $a = 0.9R$ 15 % (`tests/test_probes.py`).
+PARABOLA_LIMIT = 0.3
+
+#: Tabor's equilibrium separation $z_0$ [m] (the default of `tabor_parameter`): 0.3 nm, the
+#: order of an interatomic distance (values of 0.2–0.5 nm are used in the literature).
+TABOR_SEPARATION = 3e-10
+
+
+# --------------------------------------------------------------------------------------
+# The exact sphere
+# --------------------------------------------------------------------------------------
+
+_SERIES_TERMS = 18  # s < 0.3: s^2k <= 0.09^k, below float64 round-off after 17 terms
+
+
+def _sphere_integral(s):
+    r"""$J(s) = \int_0^s u\,\operatorname{artanh}u\,\mathrm{d}u$ for $0 \le s < 1$.
+
+    Closed form $\frac{s^2-1}{2}\operatorname{artanh}s + \frac s2$, which cancels to
+    $s^3/3$ for small $s$; there the series $\sum_k s^{2k+3}/((2k+1)(2k+3))$.
+    """
+    small = s < 0.3
+    ss = jnp.where(small, s, 0.0)
+    s2 = ss * ss
+    series = jnp.zeros_like(ss)
+    for k in reversed(range(_SERIES_TERMS)):
+        series = series * s2 + 1.0 / ((2 * k + 1) * (2 * k + 3))
+    series = series * s2 * ss
+    sl = jnp.where(small, 0.5, s)
+    closed = 0.5 * (sl * sl - 1.0) * jnp.arctanh(sl) + 0.5 * sl
+    return jnp.where(small, series, closed)
+
+
+class Sphere(AbstractCurvedProfile):
+    r"""Exact sphere of radius $R$: $f(r) = R - \sqrt{R^2 - r^2}$ for $r \le R$.
+
+    **Arguments:**
+
+    - `R`: the sphere's radius [m], > 0.
+
+    MDR profile (Sneddon 1965): $g(x) = x\,\operatorname{artanh}(x/R)
+    = \frac x2\ln\frac{R+x}{R-x}$, $g'(x) = \operatorname{artanh}(x/R) + \frac{xR}{R^2-x^2}$,
+    $\int_0^a g = \frac{a^2-R^2}{2}\operatorname{artanh}(a/R) + \frac{aR}{2}$, so that the
+    non-adhesive force is $F = E^*[(a^2+R^2)\operatorname{artanh}(a/R) - aR]$. For
+    $a \ll R$ it is `Parabola(R)` ($g = a^2/R + a^4/(3R^3) + \dots$).
+
+    **Limit.** $g$ diverges as $a \to R$ (the contact cannot reach the equator at a finite
+    indentation). Contact radii are admitted up to `max_radius` $= 0.95R$ (`SPHERE_LIMIT`;
+    indentation $d \le 1.74R$). Beyond it `g`, `dg`, `integral_g` and `contact_radius` are
+    $+\infty$: the entry functions report a non-finite result (`RESULTS.non_finite_result`
+    per lane, or an error), never an extrapolated number; `contact_radius` with concrete
+    values raises a `ValueError` naming the depth. `shape` is the geometric cap up to $r = R$
+    ($+\infty$ beyond: never touched in a BEM height map).
+
+    The radii of the contact models are roots in $t = \operatorname{artanh}(a/R)$
+    (`contact_radius`: $t\tanh t = d/R$; `critical_radius`: $\sqrt{\tanh t}\,(t +
+    \sinh 2t/2) = k c/\sqrt R$) on brackets from elementary bounds, or bracketed roots of
+    the front; all differentiable by implicit differentiation.
+    """
+
+    R: Float[Array, ""] = eqx.field(converter=as_float)
+
+    def domain(self):
+        return (Constraint("R", self.R, "m", kind="length"),)
+
+    def _inside(self, x):
+        """`(|x|/R where admitted else 0, admitted)`."""
+        ax = jnp.abs(as_float(x))
+        ok = ax <= SPHERE_LIMIT * self.R
+        return jnp.where(ok, ax / self.R, 0.0), ok
+
+    @guarded
+    def shape(self, r):
+        ar = jnp.abs(as_float(r))
+        ok = ar <= self.R
+        rs = jnp.where(ok, ar, 0.0)
+        # R - sqrt(R^2 - r^2) without cancellation
+        out = rs * rs / (self.R + jnp.sqrt((self.R - rs) * (self.R + rs)))
+        return jnp.where(ok, out, jnp.inf)
+
+    @guarded
+    def g(self, x):
+        s, ok = self._inside(x)
+        return jnp.where(ok, self.R * s * jnp.arctanh(s), jnp.inf)
+
+    @guarded
+    def dg(self, x):
+        s, ok = self._inside(x)
+        return jnp.where(ok, jnp.arctanh(s) + s / ((1.0 - s) * (1.0 + s)), jnp.inf)
+
+    @guarded
+    def integral_g(self, a):
+        s, ok = self._inside(a)
+        return jnp.where(ok, jnp.sign(as_float(a)) * self.R**2 * _sphere_integral(s), jnp.inf)
+
+    @property
+    @guarded
+    def max_radius(self):
+        return SPHERE_LIMIT * self.R
+
+    def _depth_limit(self):
+        s = SPHERE_LIMIT
+        return self.R * s * math.atanh(s)
+
+    def contact_radius(self, depth, *, lo=None, hi=None):
+        depth = as_float(depth)
+        if lo is not None or hi is not None:
+            return numerical_contact_radius(self, depth, lo, hi)
+        limit = self._depth_limit()
+        check_depth_limit("depth", self, depth)
+
+        def one(d):
+            delta = jnp.maximum(d, 0.0) / self.R
+            pos = delta > 0
+            dl = jnp.where(pos, delta, 1.0)
+            # t tanh t = delta: min(t, t^2) >= t tanh t >= t^2/(1+t)
+            t_lo = jnp.maximum(dl, jnp.sqrt(dl))
+            t_hi = 0.5 * (dl + jnp.sqrt(dl * dl + 4.0 * dl))
+            t = bracketed_root(lambda t: t * jnp.tanh(t) - dl, t_lo, t_hi)
+            a = jnp.where(pos, self.R * jnp.tanh(t), 0.0)
+            return jnp.where(d <= limit, a, jnp.inf)
+
+        return jax.vmap(one)(jnp.ravel(depth)).reshape(depth.shape)
+
+    def critical_radius(self, c, k):
+        c = as_float(c)
+        q = k * c / jnp.sqrt(self.R)
+        pos = q > 0
+        ql = jnp.where(pos, q, 1.0)
+
+        def resid(t):
+            return jnp.sqrt(jnp.tanh(t)) * (t + 0.5 * jnp.sinh(2.0 * t)) - ql
+
+        # psi(t) >= sqrt(2) t and >= e^(2t)/5 for t >= 1; psi(1) = 2.45
+        t_hi = jnp.maximum(1.0, jnp.minimum(ql / math.sqrt(2.0),
+                                            0.5 * jnp.log(jnp.maximum(5.0 * ql, 1.0))))
+        t = bracketed_root(resid, jnp.zeros_like(t_hi), t_hi)
+        a = jnp.where(pos, self.R * jnp.tanh(t), 0.0)
+        return jnp.minimum(a, self.max_radius)
+
+    def front_radius(self, m, c, lo, hi=None):
+        return numerical_front_radius(self, m, c, lo, hi)
+
+    def stationary_radius(self, q, lo, hi):
+        return numerical_stationary_radius(self, q, lo, hi)
+
+
+# --------------------------------------------------------------------------------------
+# Pyramids as equivalent cones
+# --------------------------------------------------------------------------------------
+
+#: Non-adhesive force of a regular pyramid, $F = k\,E^*\tan\alpha\,d^2$ with $\alpha$ the
+#: half-angle to the face: 4 sides, Bilodeau (1992), $k = 1.4906/2$; 3 sides, nanite's
+#: three-sided model (`hertz_pyr3s`, also citing Bilodeau 1992), $k = 0.8887$.
+PYRAMID_FACTORS = {4: 0.7453, 3: 0.8887}
+
+
+def pyramid_cone_angle(half_angle, sides: int = 4, angle: str = "face") -> float:
+    r"""The half-opening angle [rad] of the cone equivalent to a regular pyramid.
+
+    **Arguments:**
+
+    - `half_angle`: the pyramid's half-angle [rad] in (0, π/2), between the axis and a face
+      (`angle="face"`, the angle $\alpha$ of Bilodeau and nanite) or an edge
+      (`angle="edge"`); for a regular $n$-sided pyramid
+      $\tan\alpha_\mathrm{face} = \cos(\pi/n)\tan\alpha_\mathrm{edge}$.
+    - `sides`: 3 or 4.
+
+    **Returns:** $\psi$ with $\tan\psi = \frac\pi2\,k_n\tan\alpha_\mathrm{face}$, so that the
+    cone's force $\frac2\pi E^*\tan\psi\,d^2$ is the pyramid's $k_n E^*\tan\alpha\,d^2$
+    (`PYRAMID_FACTORS`).
+    """
+    if sides not in PYRAMID_FACTORS:
+        raise ValueError(f"`sides` must be 3 or 4; got {sides!r}.")
+    if angle not in ("face", "edge"):
+        raise ValueError(f"`angle` must be 'face' or 'edge'; got {angle!r}.")
+    alpha = float(half_angle)
+    if not (math.isfinite(alpha) and 0.0 < alpha < math.pi / 2):
+        raise ValueError(f"`half_angle` must lie in (0, pi/2) [rad]; got {half_angle!r}.")
+    tan_face = math.tan(alpha) * (math.cos(math.pi / sides) if angle == "edge" else 1.0)
+    return math.atan(0.5 * math.pi * PYRAMID_FACTORS[sides] * tan_face)
+
+
+def pyramid(half_angle, sides: int = 4, angle: str = "face") -> Cone:
+    r"""A regular 3- or 4-sided pyramidal tip as its axisymmetric equivalent `Cone`.
+
+    The MDR (and every model here) needs an axisymmetric profile; a pyramid is replaced by
+    the cone with the same non-adhesive force–indentation relation (`pyramid_cone_angle`:
+    Bilodeau 1992 for four sides, nanite's three-sided model). Adhesion and viscoelasticity
+    then act on that cone. Arguments as `pyramid_cone_angle` (`half_angle` [rad]).
+    """
+    return Cone(half_angle=pyramid_cone_angle(half_angle, sides, angle))
+
+
+# --------------------------------------------------------------------------------------
+# Validity: the JKR limit and the profile's range
+# --------------------------------------------------------------------------------------
+
+
+def tabor_parameter(
+    radius: Float[ArrayLike, "..."],
+    work_of_adhesion: Float[ArrayLike, "..."],
+    effective_modulus: Float[ArrayLike, "..."],
+    equilibrium_separation: Float[ArrayLike, "..."] = TABOR_SEPARATION,
+) -> Array:
+    r"""Tabor's parameter $\mu = \left(R\,\Delta\gamma^2/(E^{*2} z_0^3)\right)^{1/3}$ [1].
+
+    The ratio of the elastic neck at the edge of an adhesive contact to the range of the
+    surface forces. The models here are in the JKR limit (forces of vanishing range), which
+    holds for large $\mu$ (≳ 3–5); for $\mu \lesssim 1$ the contact is DMT-like and the
+    energetic criterion overestimates the adhesive neck (Maugis–Dugdale in between).
+
+    **Arguments** (broadcast together):
+
+    - `radius`: the probe's radius of curvature $R$ [m], > 0 (a sphere's or paraboloid's $R$;
+      for a cone or pyramid the radius of its rounded apex).
+    - `work_of_adhesion`: $\Delta\gamma$ [J/m²], >= 0.
+    - `effective_modulus`: $E^*$ [Pa], > 0. For this model's incompressible half-space
+      $E^* = 4G$; use the **glass** modulus, $E^* = 4G_g$ (`G0` of the standard model,
+      $G_\infty + \sum G_k$ of a Prony series): the detachment criterion acts with the glass
+      modulus (`docs/physics.md` §3), the neck at the moving front responds instantly. (With
+      the relaxed modulus $\mu$ is larger by $(G_g/G_\infty)^{2/3}$: a glass-modulus $\mu$ is
+      the conservative one.)
+    - `equilibrium_separation`: $z_0$ [m], > 0; default 0.3 nm (`TABOR_SEPARATION`).
+
+    **Returns:** $\mu$, the broadcast shape of the inputs. Concrete invalid inputs raise
+    `ValueError`; traced ones give NaN.
+    """
+    names = (("radius", radius, "m", False), ("work_of_adhesion", work_of_adhesion, "J/m^2", True),
+             ("effective_modulus", effective_modulus, "Pa", False),
+             ("equilibrium_separation", equilibrium_separation, "m", False))
+    ok = jnp.asarray(True)
+    for name, value, unit, zero_ok in names:
+        c = Constraint(name, value, unit, lo_open=not zero_ok)
+        c.check()
+        ok = ok & c.ok()
+    R, w, E, z0 = (as_float(v) for _, v, _, _ in names)
+    mu = jnp.cbrt(R * w * w / (E * E * z0**3))
+    return jnp.where(ok, mu, jnp.nan)
+
+
+def depth_limit(profile: AbstractProfile) -> Array:
+    r"""The largest indentation [m] that `profile` admits: for `Sphere(R)`
+    $g(0.95R) = 0.95R\operatorname{artanh}(0.95) = 1.74R$ (`SPHERE_LIMIT`), `inf` for every
+    other profile. `retract` and `simulate` (displacement control) reject a deeper
+    indentation: `ValueError` for concrete inputs, `RESULTS.invalid_depth` /
+    `RESULTS.invalid_displacement` per lane."""
+    if isinstance(profile, Sphere):
+        return profile._depth_limit()
+    return jnp.asarray(jnp.inf)
+
+
+def check_depth_limit(name: str, profile: AbstractProfile, depth) -> None:
+    """Eager: `ValueError` if a concrete `depth` [m] (any shape) exceeds `depth_limit`."""
+    if not isinstance(profile, Sphere) or not is_concrete((profile, depth)):
+        return
+    d = float(np.max(np.asarray(depth, dtype=float)))
+    limit = float(depth_limit(profile))
+    if d > limit:
+        raise ValueError(
+            f"`{name}` reaches {d:g} m, beyond the limit of the exact sphere "
+            f"(R = {float(profile.R):g} m): {limit:g} m, where the contact radius reaches "
+            f"{SPHERE_LIMIT} R (`SPHERE_LIMIT`); nearer the equator no half-space model holds."
+        )
+
+
+class ProfileValidity(eqx.Module):
+    r"""Where a contact radius lies in the range of a profile.
+
+    **Fields:**
+
+    - `limit`: the largest contact radius [m] at which the profile is a faithful model of
+      the probe it stands for (`inf` where there is none); see `profile_validity`.
+    - `fraction`: `contact_radius / limit` [1] (0 where the limit is infinite); above 1 the
+      contact is outside the profile's validity.
+    - `valid`: `fraction <= 1` (boolean array).
+    - `reason`: what the limit is (a string, the same for every entry).
+    """
+
+    limit: Array
+    fraction: Array
+    valid: Array
+    reason: str = eqx.field(static=True)
+
+
+def profile_validity(profile: AbstractProfile, contact_radius) -> ProfileValidity:
+    r"""How far `contact_radius` [m] (any shape) lies inside the profile's validity.
+
+    The limits:
+
+    - `Parabola(R)`: $0.3R$ (`PARABOLA_LIMIT`): the paraboloid stands for a sphere; beyond,
+      use `Sphere(R)`.
+    - `Sphere(R)`: its `max_radius`, $0.95R$ (`SPHERE_LIMIT`).
+    - `FlatPunch`, `Tabulated`: `max_radius` (the punch, the end of the table: a larger
+      contact is an extrapolation).
+    - `Cone`, `PowerLaw` (and cones standing for pyramids): no limit of the shape (`inf`).
+      A real tip is rounded at the apex and ends at its height; check those separately.
+
+    **Returns:** a `ProfileValidity`.
+    """
+    if not isinstance(profile, AbstractProfile):
+        raise TypeError(f"`profile` must be an AbstractProfile; got {type(profile).__name__}.")
+    a = as_float(contact_radius)
+    if isinstance(profile, Parabola):
+        limit = PARABOLA_LIMIT * profile.R
+        reason = (f"beyond {PARABOLA_LIMIT} R the paraboloid departs from a sphere "
+                  "(use the exact Sphere)")
+    elif isinstance(profile, Sphere):
+        limit = profile.max_radius
+        reason = (f"the exact sphere is admitted up to {SPHERE_LIMIT} R (near the equator no "
+                  "half-space model holds)")
+    elif isinstance(profile, Cone | PowerLaw):
+        limit = jnp.asarray(jnp.inf, a.dtype)
+        reason = "no limit of the shape"
+    elif isinstance(profile, FlatPunch):
+        limit = profile.max_radius
+        reason = "the punch's radius"
+    else:
+        limit = profile.max_radius
+        reason = "the profile's max_radius (beyond it: extrapolated)"
+    limit = as_float(limit)
+    fraction = jnp.where(jnp.isfinite(limit), a / jnp.where(jnp.isfinite(limit), limit, 1.0),
+                         0.0)
+    return ProfileValidity(limit=limit, fraction=fraction, valid=fraction <= 1.0,
+                           reason=reason)

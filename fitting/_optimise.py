@@ -572,14 +572,12 @@ def _sort_arms(spec, param, u, J):
 
 def _validity_warnings(spec, curves, profile, radius_model, valid) -> list[str]:
     out = []
-    if isinstance(profile, jc.Parabola):
-        a_max = float(np.nanmax(np.where(valid, radius_model, 0.0)))
-        R = float(profile.R)
-        if a_max > 0.3 * R:
-            out.append(f"the model's contact radius reaches {a_max / R:.2f} R (R = {R:.3g} m): "
-                       "beyond about 0.3 R the parabolic (small-indentation) profile of the "
-                       "model departs from a sphere; check the radius, or use a tabulated "
-                       "sphere profile")
+    a_max = float(np.nanmax(np.where(valid, radius_model, 0.0)))
+    check = jc.profile_validity(profile, a_max)  # the profile's own limit (every profile)
+    if not bool(check.valid):
+        out.append(f"the model's contact radius reaches {a_max:.3g} m, {float(check.fraction):.2f} "
+                   f"times the limit {float(check.limit):.3g} m of the {type(profile).__name__} "
+                   f"profile: {check.reason}; check the probe")
     # a curve whose approach was measured but not held: the relaxed start is contradicted by
     # the curve itself (a retract-only curve says nothing about how the contact was made)
     # (a loader's inferred one-sample "approach" at the top of a pure lift is no approach)

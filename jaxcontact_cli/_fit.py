@@ -11,7 +11,9 @@ file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-consta
 with an instrument file overrides the file's value and selects the compliant loading model.
 
 Order of work: every argument and input file is checked, the output folder is checked
-(it must be new, empty, or an earlier fit output: it is replaced, never mixed), the fit
+(it must be new, empty, or an earlier jaxcontact output holding only the files its
+manifest lists: it is replaced, never mixed, and a file jaxcontact did not write is never
+deleted; one run at a time per folder, see :class:`._common.OutputFolder`), the fit
 runs, and the report (``parameters.json``, ``parameters.csv``, ``fit.csv``, ``fit.png``)
 is written into a temporary folder beside ``DIR`` and renamed into place: a failed or
 interrupted run leaves no file and no stale file. A fit that did not converge is written
@@ -226,7 +228,7 @@ def _check(args):
 def run(args) -> int:
     """Run a fit from parsed arguments; returns the exit status (0: converged fit)."""
     profile, radius, fixed, bounds, initial = _check(args)
-    folder = OutputFolder("--out", args.out, marker="parameters.json")
+    folder = OutputFolder("--out", args.out, command="fit")
     curves, multi = load_inputs(args)
     each = args.each or (multi and not args.joint)
     _enable_cache()

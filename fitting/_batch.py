@@ -34,6 +34,7 @@ import jax
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._io_afm import FailedCurve
@@ -252,9 +253,9 @@ def fit_each(
         raise ValueError("rheology: 'auto' is not offered by fit_each (a map needs one model "
                          "for all points); choose 'standard' or 'prony:N'")
     if not (isinstance(chunk, int | np.integer) and chunk >= 1):
-        raise ValueError(f"chunk must be an integer >= 1; got {chunk!r}")
+        raise ValueError(f"chunk must be an integer >= 1; got {plain(chunk)}")
     if workers is not None and not (isinstance(workers, int | np.integer) and workers >= 1):
-        raise ValueError(f"workers must be an integer >= 1; got {workers!r}")
+        raise ValueError(f"workers must be an integer >= 1; got {plain(workers)}")
     if spring_constant is not None and np.ndim(spring_constant) != 0:
         raise ValueError("spring_constant: give one value for all curves (or None: each "
                          "curve's own)")

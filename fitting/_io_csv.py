@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from jaxcontact._validate import plain
+
 from ._curve import (
     DEFAULT_LIMITS,
     SEGMENT_ALIASES,
@@ -267,7 +269,7 @@ def load_csv(
         r = int(bad[0]) + 1
         raise DataError(
             f"{path}: column {header[chosen['time']]!r} is not strictly increasing at data "
-            f"row {r + 1} (line {data[r][0]}): {t[r]!r} s after {t[r - 1]!r} s"
+            f"row {r + 1} (line {data[r][0]}): {plain(t[r])} s after {plain(t[r - 1])} s"
         )
     if "displacement" in values:
         disp = values["displacement"]

@@ -55,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._least_squares import LBFGS, LevenbergMarquardt, run_pool, run_starts
@@ -240,11 +241,11 @@ def _r2(model, data, mask) -> float:
 def _check_options(n_starts, max_steps, optimiser, rtol):
     for name, v, lo in (("n_starts", n_starts, 1), ("max_steps", max_steps, 1)):
         if v is not None and (not isinstance(v, int | np.integer) or v < lo):
-            raise ValueError(f"{name} must be an integer >= {lo}; got {v!r}")
+            raise ValueError(f"{name} must be an integer >= {lo}; got {plain(v)}")
     if optimiser not in OPTIMISERS:
         raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
     if not (isinstance(rtol, int | float) and 0 < rtol < 1):
-        raise ValueError(f"rtol must be a number in (0, 1); got {rtol!r}")
+        raise ValueError(f"rtol must be a number in (0, 1); got {plain(rtol)}")
 
 
 def _options(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
@@ -260,7 +261,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
     n_starts = DEFAULT_STARTS if n_starts is None else n_starts
     _check_options(n_starts, max_steps, optimiser, rtol)
     if not (isinstance(local_rounds, int | np.integer) and local_rounds >= 0):
-        raise ValueError(f"local_rounds must be an integer >= 0; got {local_rounds!r}")
+        raise ValueError(f"local_rounds must be an integer >= 0; got {plain(local_rounds)}")
     if contact_point not in (None, "fit", "fixed"):
         raise ValueError(f"contact_point must be 'fit', 'fixed' or None; got {contact_point!r}")
     if contact_point is None:
@@ -269,7 +270,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
     if profile is None:
         if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
                                   and radius > 0):
-            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
+            raise ValueError(f"radius must be finite and > 0 [m]; got {plain(radius)}")
         profile = jc.Parabola(float(radius))
     elif radius is not None:
         raise ValueError("give either radius or profile, not both")
@@ -277,7 +278,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
         ks = np.atleast_1d(np.asarray(spring_constant, dtype=float))
         if not np.all(np.isfinite(ks) & (ks > 0)):
             raise ValueError(f"spring_constant must be finite and > 0 [N/m]; got "
-                             f"{spring_constant!r}")
+                             f"{plain(spring_constant)}")
     if rheology == "auto":
         chain = ["standard", "prony:2", "prony:3"]
     else:

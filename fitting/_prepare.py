@@ -52,6 +52,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 import jaxcontact as jc
+from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._spec import ModelSpec
@@ -244,14 +245,14 @@ def prepare_curves(
         raise ValueError("curves: give at least one curve")
     if profile is None:
         if radius is None or not (math.isfinite(float(radius)) and float(radius) > 0):
-            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
+            raise ValueError(f"radius must be finite and > 0 [m]; got {plain(radius)}")
         profile = jc.Parabola(float(radius))
     # the probe's parameters against the forward model's domain and unit plausibility
     # (eager `ValueError` naming the parameter; the traced model does not check them)
     jc.profile_radius(profile, 1e-9)
     budget = DEFAULT_MAX_SAMPLES[spec.model] if max_samples is None else int(max_samples)
     if budget < 4:
-        raise ValueError(f"max_samples must be an integer >= 4; got {max_samples!r}")
+        raise ValueError(f"max_samples must be an integer >= 4; got {plain(max_samples)}")
     if spring_constant is None or np.ndim(spring_constant) == 0:
         ks = [spring_constant] * len(curves)
     else:
@@ -291,7 +292,7 @@ def prepare_curves(
             k = k if k is not None else c.spring_constant
             if k is None or not (math.isfinite(float(k)) and float(k) > 0):
                 raise ValueError(f"curve {n}: compliant loading needs a spring constant "
-                                 f"> 0 [N/m]; got {k!r}")
+                                 f"> 0 [N/m]; got {plain(k)}")
             jc.check_plausible(f"{label}: spring_constant", float(k), "stiffness")
         if spec.model == "relaxed":
             depth = float(d[0])

@@ -219,6 +219,7 @@ def fit_each(
     force_offset: bool = False,
     n_starts: int | None = None,
     max_samples: int | None = None,
+    indentation_range: tuple[float, float] | None = None,
     cells: int = 32,
     max_steps: int = 200,
     optimiser: str = "lm",
@@ -270,7 +271,8 @@ def fit_each(
         rheology=rheology, spring_constant=spring_constant, initial=initial, fixed=fixed,
         bounds=bounds, contact_point=contact_point, force_offset=force_offset,
         n_starts=n_starts, max_samples=max_samples, cells=cells, max_steps=max_steps,
-        optimiser=optimiser, rtol=rtol, seed=seed, local_rounds=local_rounds)
+        optimiser=optimiser, rtol=rtol, seed=seed, local_rounds=local_rounds,
+        indentation_range=indentation_range)
     t_start = time.perf_counter()
     timings = {"prepare": 0.0, "optimise": 0.0, "finish": 0.0}
     show = _Progress(progress, len(items))

@@ -187,6 +187,7 @@ def load_csv(
     baseline: str | None = None,
     contact_point: str | None = None,
     limits: Limits | None = DEFAULT_LIMITS,
+    **preprocess_kw,
 ) -> Curve:
     """Load one curve from a CSV/TSV/whitespace table with a header row.
 
@@ -222,6 +223,9 @@ def load_csv(
             indentation), ``"detect"`` or ``"fit"`` (see :func:`preprocess`; a ``None``
             baseline then means ``"constant"``).
         limits: plausibility limits (see :class:`Limits`).
+        **preprocess_kw: further options of :func:`preprocess` (``threshold``,
+            ``min_run``, ``retract_baseline``, ...); only with ``baseline`` or
+            ``contact_point`` (a table read as it is is not preprocessed).
 
     Raises:
         DataError: empty file, missing column, unparsable or NaN value (naming the
@@ -296,11 +300,16 @@ def load_csv(
         raise DataError(f"{path}: {exc}") from None
     baseline = None if baseline == "none" else baseline
     contact_point = None if contact_point == "none" else contact_point
+    given = sorted(k for k, v in preprocess_kw.items() if v is not None)
     if baseline is not None or contact_point is not None:
         curve = preprocess(
             curve, baseline=baseline or ("constant" if contact_point else None),
-            contact_point=contact_point,
+            contact_point=contact_point, **preprocess_kw,
         )
+    elif given:
+        raise ValueError(f"{', '.join(given)}: apply when the table is preprocessed (give "
+                         "baseline= or contact_point=); without them it is read as "
+                         "indentation and force as they are")
     return curve
 
 

@@ -57,11 +57,17 @@ import numpy as np
 import jaxcontact as jc
 from jaxcontact._validate import plain
 
+from ._caller import warn_at_caller
 from ._curve import Curve
 from ._least_squares import LBFGS, LevenbergMarquardt, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
 from ._parameters import Parameterisation, make_parameterisation
-from ._prepare import CurveBatch, prepare_curves
+from ._prepare import (
+    CurveBatch,
+    check_indentation_range,
+    contact_point_mode,
+    prepare_curves,
+)
 from ._result import FitResult, ModelChoice
 from ._spec import (
     ModelSpec,
@@ -250,7 +256,7 @@ def _check_options(n_starts, max_steps, optimiser, rtol):
 
 def _options(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
              bounds, contact_point, force_offset, n_starts, max_samples, cells, max_steps,
-             optimiser, rtol, seed, local_rounds):
+             optimiser, rtol, seed, local_rounds, indentation_range=None):
     """Checked options of :func:`fit` (`ValueError` naming the argument): the curves as a
     list, the options of every step of the chain of models, and the chain (rheologies)."""
     if isinstance(curves, Curve):
@@ -262,11 +268,8 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
     _check_options(n_starts, max_steps, optimiser, rtol)
     if not (isinstance(local_rounds, int | np.integer) and local_rounds >= 0):
         raise ValueError(f"local_rounds must be an integer >= 0; got {plain(local_rounds)}")
-    if contact_point not in (None, "fit", "fixed"):
-        raise ValueError(f"contact_point must be 'fit', 'fixed' or None; got {contact_point!r}")
-    if contact_point is None:
-        detected = any(c.contact is not None and c.contact.method != "none" for c in curves)
-        contact_point = "fit" if detected else "fixed"
+    contact_point = contact_point_mode(contact_point, curves)
+    indentation_range = check_indentation_range(indentation_range)
     if profile is None:
         if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
                                   and radius > 0):
@@ -289,7 +292,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
                 initial=initial, fixed=fixed, bounds=bounds, contact_point=contact_point,
                 force_offset=force_offset, n_starts=n_starts, max_samples=max_samples,
                 cells=cells, max_steps=max_steps, optimiser=optimiser, rtol=rtol, seed=seed,
-                local_rounds=int(local_rounds))
+                local_rounds=int(local_rounds), indentation_range=indentation_range)
     return curves, opts, chain
 
 
@@ -308,6 +311,7 @@ def fit(
     force_offset: bool = False,
     n_starts: int | None = None,
     max_samples: int | None = None,
+    indentation_range: tuple[float, float] | None = None,
     cells: int = 32,
     max_steps: int = 200,
     progress: bool = True,
@@ -335,13 +339,18 @@ def fit(
       start, `fixed` holds a parameter.
     - `bounds`: `{name: (lower, upper)}` natural units; replaces the default bounds of that
       parameter (:func:`fitting._start.default_bounds`).
-    - `contact_point`: "fit" (the indentation offset $\delta$ [m] is fitted, started at the
-      detected contact), "fixed" (the curves' indentation is used as it is), or `None`:
-      "fit" when a curve's contact point was detected by a loader, else "fixed".
+    - `contact_point` (the vocabulary of ``jaxcontact fit --contact-point``,
+      :data:`fitting._prepare.CONTACT_POINT`): "fit" (the indentation offset $\delta$ [m]
+      is fitted, started at the detected contact), "detect" (the contact point the loader
+      detected is used as it is), "none" (the curves are indentation already, 0 at
+      contact; used as they are), or `None`: "fit" when a curve's contact point was
+      detected by a loader, else as it is. "fixed" (older spelling) means "detect".
     - `force_offset`: also fit a force offset $F_0$ [N] (a baseline error).
     - `n_starts`: starts of the global search (default :data:`DEFAULT_STARTS`).
     - `max_samples`: largest number of samples per curve (default by model:
       :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`).
+    - `indentation_range`: ``(low, high)`` [m]: only samples with indentation in it are
+      fitted (nanite's ``range_x``); the model still runs through the whole history.
     - `cells`: foundation grid of the history model. `max_steps`: iterations per start.
     - `progress`: print the stages to stderr. `optimiser`: "lm" (Levenberg–Marquardt) or
       "lbfgs" (optax L-BFGS). `rtol`:
@@ -364,7 +373,7 @@ def fit(
         spring_constant=spring_constant, initial=initial, fixed=fixed, bounds=bounds,
         contact_point=contact_point, force_offset=force_offset, n_starts=n_starts,
         max_samples=max_samples, cells=cells, max_steps=max_steps, optimiser=optimiser,
-        rtol=rtol, seed=seed, local_rounds=local_rounds)
+        rtol=rtol, seed=seed, local_rounds=local_rounds, indentation_range=indentation_range)
     results: list[FitResult] = []
     for rh in chain:
         previous = results[-1] if results else None
@@ -388,7 +397,7 @@ def fit(
     show(f"model selection: {', '.join(f'{c.rheology} BIC {c.bic:.6g}' for c in choices)}; "
          f"chosen {chosen.rheology}")
     for m in chosen.warnings:
-        warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
+        warn_at_caller(m, IdentifiabilityWarning)
     return chosen
 
 
@@ -407,13 +416,13 @@ class _Problem:
 
 def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
              contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
-             **_) -> _Problem:
+             indentation_range=None, **_) -> _Problem:
     spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
     data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
-                          max_samples=max_samples)
+                          max_samples=max_samples, indentation_range=indentation_range)
     scales = data_scales(curves, spec, profile)
     guess = initial_guess(curves, spec, profile, scales)
     guess.update(normalise_names(initial, names, "initial"))
@@ -522,7 +531,7 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
     msgs += _validity_warnings(spec, curves, profile, radius_model, valid)
     if warn:
         for m in msgs[len(unc.warnings):]:
-            warnings.warn(m, ModelValidityWarning, stacklevel=4)
+            warn_at_caller(m, ModelValidityWarning)
     fixed_mask = np.ones(len(names), dtype=bool)
     fixed_mask[list(param.free)] = False
     timings["uncertainty"] = time.perf_counter() - t0

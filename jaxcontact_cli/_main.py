@@ -36,8 +36,9 @@ class _Parser(argparse.ArgumentParser):
     """An `argparse.ArgumentParser` that reads every negative number as a value, not an
     option: argparse (before Python 3.13) takes ``--radius -1e-5`` for an option
     ``-1e-5`` and says "expected one argument"; the value then reaches the command's own
-    range check, whose message names the option and the allowed range. (No option of the
-    command line looks like a negative number.)"""
+    range check, whose message names the option and the allowed range. A range that starts
+    with a negative number (``--indentation-range -1e-7:2e-6``) is a value too. (No option
+    of the command line looks like a negative number.)"""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -45,7 +46,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 _NEGATIVE_NUMBER = re.compile(
-    r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+    r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(:.*)?$|^-(inf|infinity|nan)(:.*)?$", re.IGNORECASE)
 
 
 def build_parser() -> argparse.ArgumentParser:

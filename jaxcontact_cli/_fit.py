@@ -127,8 +127,7 @@ def add_fit_arguments(parser):
     parser.add_argument("--max-samples", type=int, default=None, metavar="N",
                         help="subsample each curve (all its segments together) to at most N "
                              "samples, N >= 4, each weighted by the measured samples it stands "
-                             "for (default 1000 for --model relaxed, 600 for history: "
-                             "fitting.DEFAULT_MAX_SAMPLES)")
+                             "for (default 1000 for --model relaxed, 600 for history)")
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--each", action="store_true",
                        help="fit every curve on its own, in batched compiled calls (default "

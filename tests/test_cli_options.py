@@ -30,8 +30,15 @@ def test_model_default_agrees():
     default = inspect.signature(fitting.fit).parameters["model"].default
     assert _fit_args(["x.csv", "--radius", "1e-5", "--out", "o"]).model == default
     assert inspect.signature(fitting.fit_each).parameters["model"].default == default
-    assert f"{default} (default" in build_parser()._subparsers._group_actions[0] \
-        .choices["fit"].format_help().replace("\n", " ").replace("  ", " ")
+    text = " ".join(build_parser()._subparsers._group_actions[0].choices["fit"]
+                    .format_help().split())
+    assert f"{default} (default" in text
+    # --max-samples said "resample each segment"; the library subsamples each curve
+    from fitting._prepare import DEFAULT_MAX_SAMPLES
+
+    assert "subsample each curve (all its segments together) to at most N samples" in text
+    assert (f"default {DEFAULT_MAX_SAMPLES['relaxed']} for --model relaxed, "
+            f"{DEFAULT_MAX_SAMPLES['history']} for history") in text
 
 
 class _Stop(SystemExit):  # passes through the command's error handling

@@ -405,13 +405,35 @@ class OutputFolder:
         _check_writable_dir(option, self.path.resolve().parent)
         self._tmp: pathlib.Path | None = None
         self._forget = None
-        self.path.resolve().parent.mkdir(parents=True, exist_ok=True)
-        self._lock = _WriteLock(option, self.path.resolve())
+        self._committed = False
+        parent = self.path.resolve().parent
+        self._made = []  # the folders made for the lock, deepest first: removed unless used
+        probe = parent
+        while not probe.exists():
+            self._made.append(probe)
+            probe = probe.parent
+        parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._lock = _WriteLock(option, self.path.resolve())
+        except UsageError:
+            self._unmake()
+            raise
+        self._forget_unmake = register_cleanup(self._unmake)
         try:
             self._check_replaceable("")
         except UsageError:
-            self._lock.release()
+            self._done()
             raise
+
+    def _unmake(self) -> None:
+        """Remove the (empty) folders made for this output, unless it was written."""
+        if self._committed:
+            return
+        for folder in self._made:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
 
     def _check_replaceable(self, when: str) -> None:
         if not self.path.is_dir():
@@ -467,6 +489,7 @@ class OutputFolder:
                     os.replace(old, target)
                 raise
             note_written(self.path)
+            self._committed = True
             self._done()
         if old is not None:
             self._remove_old(old)
@@ -500,3 +523,5 @@ class OutputFolder:
         self._tmp = None
         self._forget = None
         self._lock.release()
+        self._forget_unmake()
+        self._unmake()

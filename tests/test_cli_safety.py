@@ -137,10 +137,11 @@ def test_one_run_at_a_time_per_output_folder(tmp_path, capsys):
 def test_lock_released_when_the_command_fails_after_the_folder_check(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,displacement_m,force_N\n0,0,nope\n")
-    out = tmp_path / "o"
-    assert main(["fit", str(bad), "--radius", "1e-5", "--out", str(out), "--quiet"]) == 2
-    assert "bad.csv" in capsys.readouterr().err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv"]
+    for out in (tmp_path / "o", tmp_path / "new" / "deeper" / "o"):
+        assert main(["fit", str(bad), "--radius", "1e-5", "--out", str(out), "--quiet"]) == 2
+        assert "bad.csv" in capsys.readouterr().err
+        # no lock left, and no folder made for it (the parents of a new --out)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv"]
 
 
 _SIGNAL_AFTER_COMMIT = """

@@ -328,8 +328,10 @@ def fit(
       material parameters). Indentation [m] positive into the sample, 0 at the contact
       point; force [N] compressive positive, adhesive negative.
     - `radius`: parabolic indenter radius $R$ [m], or any jaxcontact `profile`.
-    - `model`: "relaxed" (:func:`jaxcontact.retract` on the retract after a hold long
-      enough to relax) or "history" (:func:`jaxcontact.simulate`: approach, hold, retract).
+    - `model`: "relaxed" (default, as ``jaxcontact fit --model``: :func:`jaxcontact.retract`
+      on the retract after a hold long enough to relax; a `ModelValidityWarning` says when
+      the curves have no such hold) or "history" (:func:`jaxcontact.simulate`: approach,
+      hold, retract).
     - `rheology`: "standard" ($G_0, G_1, \eta_1$), "prony:N" ($G_\infty$, $G_k$, $\tau_k$;
       fitted nested from the standard model) or "auto" (standard, prony:2, prony:3; the
       smallest BIC is kept).

@@ -208,3 +208,33 @@ def test_every_output_file_has_the_ordinary_mode(tmp_path, capsys):
         assert oct(stat.S_IMODE((tmp_path / "f").stat().st_mode)) == oct(0o755)
     finally:
         os.umask(old)
+
+
+_HOLDER = """
+import sys, time
+from jaxcontact_cli._common import OutputFolder
+folder = OutputFolder("--out", sys.argv[1], command="fit")
+print("locked", flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_second_process_is_refused_and_a_killed_ones_lock_is_taken_over(tmp_path, capsys):
+    # two fits into the same --out at once both said "written" and one result was lost
+    out = tmp_path / "o"
+    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(out)], text=True,
+                              stdout=subprocess.PIPE, env={**os.environ,
+                                                           "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        assert main(["demo", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert f"pid {holder.pid}" in err and "another jaxcontact run" in err
+    finally:
+        holder.kill()  # SIGKILL: no cleanup runs, the lock file stays behind
+        holder.wait()
+        holder.stdout.close()
+    assert (tmp_path / ".o.lock").exists()
+    folder = OutputFolder("--out", out, command="demo")  # stale: its process is gone
+    _write(folder, pulloff_csv="1")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]

@@ -300,6 +300,8 @@ def foreign_entries(folder: pathlib.Path) -> list[str]:
 
 
 def _pid_alive(pid: int) -> bool:
+    if os.name != "posix":  # pragma: no cover - os.kill(pid, 0) is no probe there
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -445,11 +447,14 @@ class OutputFolder:
         if foreign:
             shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more"
                                               if len(foreign) > 5 else "")
+            older = ("" if _listed_files(self.path) is not None else
+                     f" (it has no {MANIFEST}: an output written before jaxcontact kept "
+                     "manifests is not recognised either; remove it yourself if it is one)")
             raise UsageError(
                 f"argument {self.option}: {self.path} holds entries jaxcontact did not write "
                 f"({shown}){when}; an output folder is replaced whole, so it must be new, "
-                f"empty or an earlier jaxcontact output (listed in its {MANIFEST}); choose "
-                "a new folder")
+                f"empty or an earlier jaxcontact output (every entry listed in its "
+                f"{MANIFEST}){older}; choose a new folder")
 
     def stage(self) -> pathlib.Path:
         parent = self.path.resolve().parent

@@ -222,6 +222,8 @@ _RETRACT_BASELINE = {"auto": None, "include": True, "exclude": False, "separate"
 
 def _cli_names(msg: str) -> str:
     """A loader message with its option names as the command line spells them."""
+    msg = msg.replace("(give baseline= or contact_point=)",
+                      "(give --baseline or --contact-point detect/fit)")
     for name in ("threshold", "min_run", "retract_baseline"):
         msg = msg.replace(name, "--" + name.replace("_", "-"))
     return msg

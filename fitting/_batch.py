@@ -37,6 +37,7 @@ import jax
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._io_afm import FailedCurve
@@ -215,6 +216,7 @@ def fit_each(
     force_offset: bool = False,
     n_starts: int | None = None,
     max_samples: int | None = None,
+    indentation_range: tuple[float, float] | None = None,
     cells: int = 32,
     max_steps: int = 200,
     optimiser: str = "lm",
@@ -249,9 +251,9 @@ def fit_each(
         raise ValueError("rheology: 'auto' is not offered by fit_each (a map needs one model "
                          "for all points); choose 'standard' or 'prony:N'")
     if not (isinstance(chunk, int | np.integer) and chunk >= 1):
-        raise ValueError(f"chunk must be an integer >= 1; got {chunk!r}")
+        raise ValueError(f"chunk must be an integer >= 1; got {plain(chunk)}")
     if workers is not None and not (isinstance(workers, int | np.integer) and workers >= 1):
-        raise ValueError(f"workers must be an integer >= 1; got {workers!r}")
+        raise ValueError(f"workers must be an integer >= 1; got {plain(workers)}")
     if spring_constant is not None and np.ndim(spring_constant) != 0:
         raise ValueError("spring_constant: give one value for all curves (or None: each "
                          "curve's own)")
@@ -266,7 +268,8 @@ def fit_each(
         rheology=rheology, spring_constant=spring_constant, initial=initial, fixed=fixed,
         bounds=bounds, contact_point=contact_point, force_offset=force_offset,
         n_starts=n_starts, max_samples=max_samples, cells=cells, max_steps=max_steps,
-        optimiser=optimiser, rtol=rtol, seed=seed, local_rounds=local_rounds)
+        optimiser=optimiser, rtol=rtol, seed=seed, local_rounds=local_rounds,
+        indentation_range=indentation_range)
     t_start = time.perf_counter()
     timings = {"prepare": 0.0, "optimise": 0.0, "finish": 0.0}
     show = _Progress(progress, len(items))

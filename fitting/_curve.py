@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from jaxcontact._validate import plain
+
 __all__ = ["DataError", "SEGMENT_KINDS", "Limits", "DEFAULT_LIMITS", "ContactPoint", "Curve",
            "infer_segments", "select_segments", "resample"]
 
@@ -268,8 +270,8 @@ class Curve:
         if bad.size:
             i = int(bad[0]) + 1
             raise ValueError(
-                f"time is not strictly increasing at sample {i}: t[{i}] = {t[i]!r} s "
-                f"after t[{i - 1}] = {t[i - 1]!r} s"
+                f"time is not strictly increasing at sample {i}: t[{i}] = {plain(t[i])} s "
+                f"after t[{i - 1}] = {plain(t[i - 1])} s"
             )
         object.__setattr__(self, "time", t)
         object.__setattr__(self, "displacement", d)

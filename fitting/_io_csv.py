@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from jaxcontact._validate import plain
+
 from ._curve import (
     DEFAULT_LIMITS,
     SEGMENT_ALIASES,
@@ -185,6 +187,7 @@ def load_csv(
     baseline: str | None = None,
     contact_point: str | None = None,
     limits: Limits | None = DEFAULT_LIMITS,
+    **preprocess_kw,
 ) -> Curve:
     """Load one curve from a CSV/TSV/whitespace table with a header row.
 
@@ -220,6 +223,9 @@ def load_csv(
             indentation), ``"detect"`` or ``"fit"`` (see :func:`preprocess`; a ``None``
             baseline then means ``"constant"``).
         limits: plausibility limits (see :class:`Limits`).
+        **preprocess_kw: further options of :func:`preprocess` (``threshold``,
+            ``min_run``, ``retract_baseline``, ...); only with ``baseline`` or
+            ``contact_point`` (a table read as it is is not preprocessed).
 
     Raises:
         DataError: empty file, missing column, unparsable or NaN value (naming the
@@ -267,7 +273,7 @@ def load_csv(
         r = int(bad[0]) + 1
         raise DataError(
             f"{path}: column {header[chosen['time']]!r} is not strictly increasing at data "
-            f"row {r + 1} (line {data[r][0]}): {t[r]!r} s after {t[r - 1]!r} s"
+            f"row {r + 1} (line {data[r][0]}): {plain(t[r])} s after {plain(t[r - 1])} s"
         )
     if "displacement" in values:
         disp = values["displacement"]
@@ -294,11 +300,16 @@ def load_csv(
         raise DataError(f"{path}: {exc}") from None
     baseline = None if baseline == "none" else baseline
     contact_point = None if contact_point == "none" else contact_point
+    given = sorted(k for k, v in preprocess_kw.items() if v is not None)
     if baseline is not None or contact_point is not None:
         curve = preprocess(
             curve, baseline=baseline or ("constant" if contact_point else None),
-            contact_point=contact_point,
+            contact_point=contact_point, **preprocess_kw,
         )
+    elif given:
+        raise ValueError(f"{', '.join(given)}: apply when the table is preprocessed (give "
+                         "baseline= or contact_point=); without them it is read as "
+                         "indentation and force as they are")
     return curve
 
 

@@ -130,7 +130,11 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
                                  "files only")
             return [table]
         except DataError as table_error:
-            if any("detect" not in r.recipe for r in _afm_recipes(path.suffix)):
+            # table options given: the caller reads a table, and its error is the answer
+            # (not "an instrument file read through afmformats")
+            tabled = any(kw.get(k) is not None for k in _TABLE_ONLY)
+            if not tabled and any("detect" not in r.recipe
+                                  for r in _afm_recipes(path.suffix)):
                 try:
                     return load_afm(path, on_error=on_error, **_afm_options(path, kw))
                 except DataError as afm_error:

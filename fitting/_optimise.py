@@ -55,12 +55,19 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._validate import plain
 
+from ._caller import warn_at_caller
 from ._curve import Curve
 from ._least_squares import LBFGS, LevenbergMarquardt, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
 from ._parameters import Parameterisation, make_parameterisation
-from ._prepare import CurveBatch, prepare_curves
+from ._prepare import (
+    CurveBatch,
+    check_indentation_range,
+    contact_point_mode,
+    prepare_curves,
+)
 from ._quality import assess, check_contact_signal, r_squared
 from ._result import FitResult, ModelChoice
 from ._spec import (
@@ -234,16 +241,16 @@ def _r2(model, data, mask) -> float:
 def _check_options(n_starts, max_steps, optimiser, rtol):
     for name, v, lo in (("n_starts", n_starts, 1), ("max_steps", max_steps, 1)):
         if v is not None and (not isinstance(v, int | np.integer) or v < lo):
-            raise ValueError(f"{name} must be an integer >= {lo}; got {v!r}")
+            raise ValueError(f"{name} must be an integer >= {lo}; got {plain(v)}")
     if optimiser not in OPTIMISERS:
         raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
     if not (isinstance(rtol, int | float) and 0 < rtol < 1):
-        raise ValueError(f"rtol must be a number in (0, 1); got {rtol!r}")
+        raise ValueError(f"rtol must be a number in (0, 1); got {plain(rtol)}")
 
 
 def _options(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
              bounds, contact_point, force_offset, n_starts, max_samples, cells, max_steps,
-             optimiser, rtol, seed, local_rounds):
+             optimiser, rtol, seed, local_rounds, indentation_range=None):
     """Checked options of :func:`fit` (`ValueError` naming the argument): the curves as a
     list, the options of every step of the chain of models, and the chain (rheologies)."""
     if isinstance(curves, Curve):
@@ -254,16 +261,13 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
     n_starts = DEFAULT_STARTS if n_starts is None else n_starts
     _check_options(n_starts, max_steps, optimiser, rtol)
     if not (isinstance(local_rounds, int | np.integer) and local_rounds >= 0):
-        raise ValueError(f"local_rounds must be an integer >= 0; got {local_rounds!r}")
-    if contact_point not in (None, "fit", "fixed"):
-        raise ValueError(f"contact_point must be 'fit', 'fixed' or None; got {contact_point!r}")
-    if contact_point is None:
-        detected = any(c.contact is not None and c.contact.method != "none" for c in curves)
-        contact_point = "fit" if detected else "fixed"
+        raise ValueError(f"local_rounds must be an integer >= 0; got {plain(local_rounds)}")
+    contact_point = contact_point_mode(contact_point, curves)
+    indentation_range = check_indentation_range(indentation_range)
     if profile is None:
         if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
                                   and radius > 0):
-            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
+            raise ValueError(f"radius must be finite and > 0 [m]; got {plain(radius)}")
         profile = jc.Parabola(float(radius))
     elif radius is not None:
         raise ValueError("give either radius or profile, not both")
@@ -271,7 +275,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
         ks = np.atleast_1d(np.asarray(spring_constant, dtype=float))
         if not np.all(np.isfinite(ks) & (ks > 0)):
             raise ValueError(f"spring_constant must be finite and > 0 [N/m]; got "
-                             f"{spring_constant!r}")
+                             f"{plain(spring_constant)}")
     if rheology == "auto":
         chain = ["standard", "prony:2", "prony:3"]
     else:
@@ -282,7 +286,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
                 initial=initial, fixed=fixed, bounds=bounds, contact_point=contact_point,
                 force_offset=force_offset, n_starts=n_starts, max_samples=max_samples,
                 cells=cells, max_steps=max_steps, optimiser=optimiser, rtol=rtol, seed=seed,
-                local_rounds=int(local_rounds))
+                local_rounds=int(local_rounds), indentation_range=indentation_range)
     return curves, opts, chain
 
 
@@ -301,6 +305,7 @@ def fit(
     force_offset: bool = False,
     n_starts: int | None = None,
     max_samples: int | None = None,
+    indentation_range: tuple[float, float] | None = None,
     cells: int = 32,
     max_steps: int = 200,
     progress: bool = True,
@@ -317,8 +322,10 @@ def fit(
       material parameters). Indentation [m] positive into the sample, 0 at the contact
       point; force [N] compressive positive, adhesive negative.
     - `radius`: parabolic indenter radius $R$ [m], or any jaxcontact `profile`.
-    - `model`: "relaxed" (:func:`jaxcontact.retract` on the retract after a hold long
-      enough to relax) or "history" (:func:`jaxcontact.simulate`: approach, hold, retract).
+    - `model`: "relaxed" (default, as ``jaxcontact fit --model``: :func:`jaxcontact.retract`
+      on the retract after a hold long enough to relax; a `ModelValidityWarning` says when
+      the curves have no such hold) or "history" (:func:`jaxcontact.simulate`: approach,
+      hold, retract).
     - `rheology`: "standard" ($G_0, G_1, \eta_1$), "prony:N" ($G_\infty$, $G_k$, $\tau_k$;
       fitted nested from the standard model) or "auto" (standard, prony:2, prony:3; the
       smallest BIC is kept).
@@ -328,13 +335,18 @@ def fit(
       start, `fixed` holds a parameter.
     - `bounds`: `{name: (lower, upper)}` natural units; replaces the default bounds of that
       parameter (:func:`fitting._start.default_bounds`).
-    - `contact_point`: "fit" (the indentation offset $\delta$ [m] is fitted, started at the
-      detected contact), "fixed" (the curves' indentation is used as it is), or `None`:
-      "fit" when a curve's contact point was detected by a loader, else "fixed".
+    - `contact_point` (the vocabulary of ``jaxcontact fit --contact-point``,
+      :data:`fitting._prepare.CONTACT_POINT`): "fit" (the indentation offset $\delta$ [m]
+      is fitted, started at the detected contact), "detect" (the contact point the loader
+      detected is used as it is), "none" (the curves are indentation already, 0 at
+      contact; used as they are), or `None`: "fit" when a curve's contact point was
+      detected by a loader, else as it is. "fixed" (older spelling) means "detect".
     - `force_offset`: also fit a force offset $F_0$ [N] (a baseline error).
     - `n_starts`: starts of the global search (default :data:`DEFAULT_STARTS`).
     - `max_samples`: largest number of samples per curve (default by model:
       :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`).
+    - `indentation_range`: ``(low, high)`` [m]: only samples with indentation in it are
+      fitted (nanite's ``range_x``); the model still runs through the whole history.
     - `cells`: foundation grid of the history model. `max_steps`: iterations per start.
     - `progress`: print the stages to stderr. `optimiser`: "lm" (Levenberg–Marquardt) or
       "lbfgs" (optax L-BFGS). `rtol`:
@@ -357,7 +369,7 @@ def fit(
         spring_constant=spring_constant, initial=initial, fixed=fixed, bounds=bounds,
         contact_point=contact_point, force_offset=force_offset, n_starts=n_starts,
         max_samples=max_samples, cells=cells, max_steps=max_steps, optimiser=optimiser,
-        rtol=rtol, seed=seed, local_rounds=local_rounds)
+        rtol=rtol, seed=seed, local_rounds=local_rounds, indentation_range=indentation_range)
     results: list[FitResult] = []
     for rh in chain:
         previous = results[-1] if results else None
@@ -381,7 +393,7 @@ def fit(
     show(f"model selection: {', '.join(f'{c.rheology} BIC {c.bic:.6g}' for c in choices)}; "
          f"chosen {chosen.rheology}")
     for m in chosen.warnings:
-        warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
+        warn_at_caller(m, IdentifiabilityWarning)
     return chosen
 
 
@@ -400,14 +412,14 @@ class _Problem:
 
 def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
              contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
-             **_) -> _Problem:
+             indentation_range=None, **_) -> _Problem:
     spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
     check_contact_signal(curves, spec)
     data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
-                          max_samples=max_samples)
+                          max_samples=max_samples, indentation_range=indentation_range)
     scales = data_scales(curves, spec, profile)
     guess = initial_guess(curves, spec, profile, scales)
     guess.update(normalise_names(initial, names, "initial"))
@@ -516,7 +528,7 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
     msgs += _validity_warnings(spec, curves, profile, radius_model, valid)
     if warn:
         for m in msgs[len(unc.warnings):]:
-            warnings.warn(m, ModelValidityWarning, stacklevel=4)
+            warn_at_caller(m, ModelValidityWarning)
     fixed_mask = np.ones(len(names), dtype=bool)
     fixed_mask[list(param.free)] = False
     timings["uncertainty"] = time.perf_counter() - t0

@@ -25,6 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from jaxcontact._validate import plain
+
 from ._spec import normalise_names
 
 __all__ = ["Parameterisation", "make_parameterisation", "AT_BOUND"]
@@ -141,7 +143,7 @@ def make_parameterisation(
         if not math.isfinite(v) or (lg and v <= 0):
             what = "fixed" if n in fixed else "initial"
             rng = "(0, inf)" if lg else "(-inf, inf)"
-            raise ValueError(f"{what} value of {n!r} must be finite and in {rng}; got {v!r}")
+            raise ValueError(f"{what} value of {n!r} must be finite and in {rng}; got {plain(v)}")
     lo = np.full(len(names), -np.inf)
     hi = np.full(len(names), np.inf)
     for n, pair in bounds.items():
@@ -150,11 +152,11 @@ def make_parameterisation(
             a, b = (float(x) for x in pair)
         except (TypeError, ValueError):
             raise ValueError(f"bounds for {n!r} must be a pair (lower, upper); got "
-                             f"{pair!r}") from None
+                             f"{plain(pair)}") from None
         ok = math.isfinite(a) and math.isfinite(b) and a < b and (a > 0 or not is_log[i])
         if not ok:
             need = "0 < lower < upper" if is_log[i] else "finite lower < upper"
-            raise ValueError(f"bounds for {n!r} must satisfy {need}; got {(a, b)}")
+            raise ValueError(f"bounds for {n!r} must satisfy {need}; got {plain((a, b))}")
         lo[i], hi[i] = ((math.log(a), math.log(b)) if is_log[i]
                         else (a / scale[i], b / scale[i]))
     free = tuple(i for i, n in enumerate(names) if n not in fixed)

@@ -52,6 +52,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 import jaxcontact as jc
+from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._spec import ModelSpec
@@ -59,13 +60,54 @@ from ._spec import ModelSpec
 __all__ = ["CurveBatch", "prepare_curves", "stack_batches", "select_samples", "sample_weights",
            "noise_level",
            "SEGMENTS",
-           "DEFAULT_MAX_SAMPLES"]
+           "DEFAULT_MAX_SAMPLES", "CONTACT_POINT", "contact_point_mode",
+           "check_indentation_range"]
 
 #: Segment codes of :attr:`CurveBatch.segment`.
 SEGMENTS = ("approach", "hold", "retract")
 
 #: Default largest number of samples per curve, by model.
 DEFAULT_MAX_SAMPLES = {"relaxed": 1000, "history": 600}
+
+#: The `contact_point` of :func:`fitting.fit` and :func:`fitting.fit_each` (and of
+#: ``jaxcontact fit --contact-point``), one vocabulary: what the fit does with the
+#: curves' contact point.
+CONTACT_POINT = {
+    "fit": "fit the indentation offset delta [m], started at the curve's contact point",
+    "detect": "use the contact point as the loader detected it (indentation as it is)",
+    "none": "the data are indentation already, 0 at contact (used as it is)",
+    "fixed": "older spelling of 'detect' (the indentation as it is)",
+}
+
+
+def contact_point_mode(contact_point: str | None, curves: Sequence[Curve]) -> str:
+    """The fit's handling of the contact point: ``"fit"`` (an indentation offset is a
+    parameter) or ``"fixed"`` (the indentation as it is), from the public vocabulary
+    :data:`CONTACT_POINT` (`None`: ``"fit"`` when a loader detected a curve's contact
+    point, else as it is). Raises `ValueError` naming the allowed values."""
+    if contact_point is None:
+        detected = any(c.contact is not None and c.contact.method != "none" for c in curves)
+        return "fit" if detected else "fixed"
+    if contact_point not in CONTACT_POINT:
+        raise ValueError(f"contact_point must be one of {', '.join(map(repr, CONTACT_POINT))} "
+                         f"or None; got {plain(contact_point)}")
+    return "fit" if contact_point == "fit" else "fixed"
+
+
+def check_indentation_range(indentation_range) -> tuple[float, float] | None:
+    """`indentation_range` as ``(low, high)`` floats [m] (None: no range), or a
+    `ValueError` naming it: two finite numbers, low < high."""
+    if indentation_range is None:
+        return None
+    try:
+        lo, hi = (float(x) for x in indentation_range)
+    except (TypeError, ValueError):
+        raise ValueError("indentation_range must be a pair (low, high) [m]; got "
+                         f"{plain(indentation_range)}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError("indentation_range must be finite with low < high [m]; got "
+                         f"{plain((lo, hi))}")
+    return lo, hi
 
 
 class CurveBatch(eqx.Module):
@@ -229,14 +271,19 @@ def prepare_curves(
     profile: jc.AbstractProfile | None = None,
     spring_constant: float | Sequence[float] | None = None,
     max_samples: int | None = None,
+    indentation_range: tuple[float, float] | None = None,
 ) -> CurveBatch:
     """Select and subsample the samples, estimate the noise, pad into a `CurveBatch`.
 
     `max_samples`: largest number of samples per curve (default
     :data:`DEFAULT_MAX_SAMPLES` of the model; see :func:`select_samples`).
     `spring_constant`: one value or one per curve, for ``spec.compliant`` (default: the
-    curves' own).
+    curves' own). `indentation_range`: ``(low, high)`` [m] (like nanite's ``range_x``):
+    only samples whose indentation lies in it are residuals (the others keep weight 0:
+    the model still runs through the whole history, and they are shown, not fitted);
+    None: every selected sample.
     """
+    rng = check_indentation_range(indentation_range)
     if isinstance(curves, Curve):
         curves = [curves]
     curves = list(curves)
@@ -244,14 +291,14 @@ def prepare_curves(
         raise ValueError("curves: give at least one curve")
     if profile is None:
         if radius is None or not (math.isfinite(float(radius)) and float(radius) > 0):
-            raise ValueError(f"radius must be finite and > 0 [m]; got {radius!r}")
+            raise ValueError(f"radius must be finite and > 0 [m]; got {plain(radius)}")
         profile = jc.Parabola(float(radius))
     # the probe's parameters against the forward model's domain and unit plausibility
     # (eager `ValueError` naming the parameter; the traced model does not check them)
     jc.profile_radius(profile, 1e-9)
     budget = DEFAULT_MAX_SAMPLES[spec.model] if max_samples is None else int(max_samples)
     if budget < 4:
-        raise ValueError(f"max_samples must be an integer >= 4; got {max_samples!r}")
+        raise ValueError(f"max_samples must be an integer >= 4; got {plain(max_samples)}")
     if spring_constant is None or np.ndim(spring_constant) == 0:
         ks = [spring_constant] * len(curves)
     else:
@@ -284,6 +331,14 @@ def prepare_curves(
         t, d, f, seg, idx = t_all[pick], d_all[pick], f_all[pick], seg[pick], idx[pick]
         t = t - t[0]
         label = f"curve {n} ({c.source or 'no source'})"
+        if rng is not None:
+            inside = (d >= rng[0]) & (d <= rng[1])
+            if not inside.any():
+                raise ValueError(
+                    f"{label}: no sample with indentation in indentation_range "
+                    f"[{rng[0]:g}, {rng[1]:g}] m (its indentation spans [{float(d_all.min()):g}, "
+                    f"{float(d_all.max()):g}] m)")
+            weight = np.where(inside, weight, 0.0)
         jc.check_plausible(f"{label}: displacement", d_all, "length", magnitude=True)
         jc.check_plausible(f"{label}: duration", t_all[-1] - t_all[0], "time")
         k = ks[n]
@@ -291,7 +346,7 @@ def prepare_curves(
             k = k if k is not None else c.spring_constant
             if k is None or not (math.isfinite(float(k)) and float(k) > 0):
                 raise ValueError(f"curve {n}: compliant loading needs a spring constant "
-                                 f"> 0 [N/m]; got {k!r}")
+                                 f"> 0 [N/m]; got {plain(k)}")
             jc.check_plausible(f"{label}: spring_constant", float(k), "stiffness")
         if spec.model == "relaxed":
             depth = float(d[0])

@@ -11,6 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcontact._validate import plain
+
 from ._objective import residuals
 from ._optimise import solve
 from ._parameters import Parameterisation
@@ -67,7 +69,7 @@ def profile_likelihood(result, name: str, values, *, max_steps: int = 200) -> di
     ok = np.isfinite(values) & ((values > 0) | (not fit_param.log[j]))
     if not np.all(ok):
         need = "finite and > 0" if fit_param.log[j] else "finite"
-        raise ValueError(f"values of {names[j]!r} must be {need}; got {values[~ok][0]!r}")
+        raise ValueError(f"values of {names[j]!r} must be {need}; got {plain(values[~ok][0])}")
     u_hat = fit_param.to_internal(result.values)
     references = np.repeat(u_hat[None], values.size, axis=0)
     references[:, j] = [fit_param.to_internal(_with(result.values, j, v))[j] for v in values]

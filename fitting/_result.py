@@ -140,6 +140,14 @@ class FitResult:
         """"standard" or "prony:N"."""
         return rheology_name(self.spec)
 
+    def _free_count(self) -> str:
+        """"N free parameter(s)" as the fit's start line counts them (every parameter not
+        fixed), with those that ended at a bound (not counted in `n_free`, AIC and BIC)."""
+        free = int(np.sum(~np.asarray(self.fixed, dtype=bool)))
+        at_bound = free - int(self.n_free)
+        return f"{free} free parameter(s)" + (
+            f" ({at_bound} at a bound, not counted in AIC/BIC)" if at_bound > 0 else "")
+
     def summary(self) -> str:
         """A short report: model, convergence, quality (overall and per segment), one line
         per parameter, warnings."""
@@ -150,7 +158,7 @@ class FitResult:
         lines = [f"[[fit]] model={self.spec.model}, rheology={self.rheology}, "
                  f"{len(self.curves)} curve(s), {self.n_data} samples "
                  f"({self.data.n_samples} kept), "
-                 f"{self.n_free} free parameter(s), optimiser={self.optimiser}",
+                 f"{self._free_count()}, optimiser={self.optimiser}",
                  f"    status             {status}",
                  f"    converged          {conv}",
                  f"    chi2               {self.chi2:.6g}",

@@ -36,9 +36,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 
 import numpy as np
+
+from ._caller import warn_at_caller
 
 __all__ = ["IdentifiabilityWarning", "ModelValidityWarning", "Uncertainty", "gauss_newton",
            "derived_quantities", "POISSON"]
@@ -176,7 +177,7 @@ def gauss_newton(param, u, r, J, names, *, n_data: int, weights=None,
         messages.append(f"{names[i]} is not determined by the data: {why}")
     if warn:
         for m in messages:
-            warnings.warn(m, IdentifiabilityWarning, stacklevel=3)
+            warn_at_caller(m, IdentifiabilityWarning)
     return Uncertainty(stderr=stderr, covariance=cov, correlation=corr, status=status,
                        chi2=chi2, reduced_chi2=s2, n_data=int(n_data), dof=int(dof),
                        condition_number=float(cond), warnings=messages)

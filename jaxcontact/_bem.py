@@ -104,7 +104,13 @@ from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
 from ._solution import RESULTS
 from ._solvers import as_float, floats_to_arrays, safe_div
-from ._validate import check_finite, check_positive, check_times, is_concrete
+from ._validate import (
+    check_finite,
+    check_plausible,
+    check_positive,
+    check_times,
+    is_concrete,
+)
 
 __all__ = [
     "BEMGrid",
@@ -759,6 +765,10 @@ def bem_simulate(
     - `throw`: raise if a solve did not converge (`.result`) or if the contact reached the
       edge of the grid (`.stats["touches_edge"]`); with False inspect these instead.
 
+    Concrete inputs far outside the plausible range of their unit (a displacement above
+    1 m: nanometres given as metres; see `PLAUSIBLE`) raise a `ValueError` before the solve
+    (switched off by `plausibility_checks(False)`).
+
     **Returns:** a `BEMSolution`.
     """
     if not isinstance(grid, BEMGrid):
@@ -784,6 +794,13 @@ def bem_simulate(
         check_positive("stiffness", stiffness, "N/m")
     if relaxed_depth is not None:
         check_positive("relaxed_depth", relaxed_depth, "m")
+    # a displacement of 4000 m is nanometres given as metres: say so, rather than let the
+    # contact outgrow the grid ("enlarge grid.extent")
+    if force is None:
+        check_plausible(name, inputs, "length", magnitude=True)
+    check_plausible("relaxed_depth", relaxed_depth, "length")
+    check_plausible("work_of_adhesion", work_of_adhesion, "work_of_adhesion")
+    check_plausible("stiffness", stiffness, "stiffness")
     h = _heights(indenter, grid)
     adhesive = True
     if is_concrete(work_of_adhesion):
@@ -814,7 +831,9 @@ def bem_simulate(
         sol = eqx.error_if(
             sol,
             sol.stats["touches_edge"],
-            "BEM: the contact reached the edge of the grid; enlarge `grid.extent`.",
+            "BEM: the contact reached the edge of the grid; enlarge `grid.extent` (or, if "
+            "the indentation is not small against `grid.extent`, check the units: all "
+            "lengths are in metres).",
         )
     return sol
 

@@ -51,7 +51,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._root import bracketed_root
 from ._solvers import as_float
-from ._validate import Constraint, guarded
+from ._validate import Constraint, float_field, guarded, module_repr
 
 __all__ = [
     "AbstractProfile",
@@ -314,6 +314,10 @@ class AbstractProfile(eqx.Module):
         for constraint in self.domain():
             constraint.check()
 
+    def __repr__(self) -> str:
+        """``Parabola(R=1e-05)``: the values (see `module_repr`)."""
+        return module_repr(self)
+
     @abc.abstractmethod
     def domain(self) -> tuple[Constraint, ...]:
         """The profile's parameters and their allowed ranges."""
@@ -510,8 +514,8 @@ class PowerLaw(AbstractPowerLawProfile):
     MDR profile: $g(x) = \kappa(n)\,c\,|x|^n$ with `power_law_factor`.
     """
 
-    c: Float[Array, ""] = eqx.field(converter=as_float)
-    n: Float[Array, ""] = eqx.field(converter=as_float)
+    c: Float[Array, ""] = eqx.field(converter=float_field("c", "m^(1-n)"))
+    n: Float[Array, ""] = eqx.field(converter=float_field("n", "1"))
 
     def domain(self):
         return (Constraint("c", self.c, "m^(1-n)"), Constraint("n", self.n, "1", lo=0.5))
@@ -553,7 +557,7 @@ class Parabola(AbstractPowerLawProfile):
     form (Ferrari, with a cancellation-free Cardano step).
     """
 
-    R: Float[Array, ""] = eqx.field(converter=as_float)
+    R: Float[Array, ""] = eqx.field(converter=float_field("R", "m"))
 
     def domain(self):
         return (Constraint("R", self.R, "m", kind="length"),)
@@ -592,7 +596,7 @@ class Cone(AbstractPowerLawProfile):
     - `half_angle`: $\alpha$ [rad], in (0, π/2).
     """
 
-    half_angle: Float[Array, ""] = eqx.field(converter=as_float)
+    half_angle: Float[Array, ""] = eqx.field(converter=float_field("half_angle", "rad"))
 
     def domain(self):
         return (Constraint("half_angle", self.half_angle, "rad", hi=math.pi / 2),)
@@ -637,7 +641,7 @@ class FlatPunch(AbstractProfile):
     - `radius`: punch radius $a_0$ [m], > 0.
     """
 
-    radius: Float[Array, ""] = eqx.field(converter=as_float)
+    radius: Float[Array, ""] = eqx.field(converter=float_field("radius", "m"))
 
     def domain(self):
         return (Constraint("radius", self.radius, "m", kind="length"),)

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from ._solvers import as_float
-from ._validate import Constraint, guarded
+from ._validate import Constraint, float_field, guarded, module_repr
 
 # Shape-annotated aliases (kept out of annotations so that linters do not parse the strings).
 Scalar = Float[Array, ""]
@@ -127,6 +127,10 @@ class AbstractRheology(eqx.Module):
         for constraint in self.domain():
             constraint.check()
 
+    def __repr__(self) -> str:
+        """``StandardModel(G0=1000000.0, G1=200000.0, eta1=10000.0)``: the values."""
+        return module_repr(self)
+
     @abc.abstractmethod
     def domain(self) -> tuple[Constraint, ...]:
         """The parameters and their allowed ranges."""
@@ -190,9 +194,9 @@ class PronySeries(AbstractRheology):
     time gives a Kelvin element of infinite stiffness and NaN gradients).
     """
 
-    G_inf: Scalar = eqx.field(converter=as_float)
-    G: Arms = eqx.field(converter=_as_float_1d)
-    tau: Arms = eqx.field(converter=_as_float_1d)
+    G_inf: Scalar = eqx.field(converter=float_field("G_inf", "Pa"))
+    G: Arms = eqx.field(converter=float_field("G", "Pa", arms=True))
+    tau: Arms = eqx.field(converter=float_field("tau", "s", arms=True))
 
     def __check_init__(self):
         _check_scalar("G_inf", self.G_inf)
@@ -283,9 +287,9 @@ class CreepChain(AbstractRheology):
     `to_prony` needs distinct retardation times $\theta_k$ (merge equal ones first).
     """
 
-    G0: Scalar = eqx.field(converter=as_float)
-    G: Arms = eqx.field(converter=_as_float_1d)
-    eta: Arms = eqx.field(converter=_as_float_1d)
+    G0: Scalar = eqx.field(converter=float_field("G0", "Pa"))
+    G: Arms = eqx.field(converter=float_field("G", "Pa", arms=True))
+    eta: Arms = eqx.field(converter=float_field("eta", "Pa s", arms=True))
 
     def __check_init__(self):
         _check_scalar("G0", self.G0)
@@ -373,7 +377,7 @@ class Elastic(AbstractRheology):
     `to_prony()` / `to_creep_chain()` return forms with zero arms (shape-`(0,)` arrays).
     """
 
-    G: Scalar = eqx.field(converter=as_float)
+    G: Scalar = eqx.field(converter=float_field("G", "Pa"))
 
     def __check_init__(self):
         _check_scalar("G", self.G)
@@ -434,9 +438,9 @@ class StandardModel(AbstractRheology):
     - `eta1`: Kelvin viscosity $\eta_1$ [Pa s], scalar, > 0.
     """
 
-    G0: Scalar = eqx.field(converter=as_float)
-    G1: Scalar = eqx.field(converter=as_float)
-    eta1: Scalar = eqx.field(converter=as_float)
+    G0: Scalar = eqx.field(converter=float_field("G0", "Pa"))
+    G1: Scalar = eqx.field(converter=float_field("G1", "Pa"))
+    eta1: Scalar = eqx.field(converter=float_field("eta1", "Pa s"))
 
     def __check_init__(self):
         for name in ("G0", "G1", "eta1"):

@@ -42,7 +42,14 @@ from ._profiles import (
     numerical_stationary_radius,
 )
 from ._solvers import as_float
-from ._validate import Condition, Constraint, check_finite, guarded, is_concrete
+from ._validate import (
+    Condition,
+    Constraint,
+    check_finite,
+    float_field,
+    guarded,
+    is_concrete,
+)
 
 __all__ = ["Tabulated"]
 
@@ -281,8 +288,8 @@ class Tabulated(AbstractCurvedProfile):
     `front_radius`) are bracketed roots.
     """
 
-    r: Array = eqx.field(converter=as_float)
-    f: Array = eqx.field(converter=as_float)
+    r: Array = eqx.field(converter=float_field("r", "m"))
+    f: Array = eqx.field(converter=float_field("f", "m"))
 
     def __check_init__(self):
         if self.r.ndim != 1:

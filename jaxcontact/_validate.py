@@ -356,3 +356,74 @@ def plausible(value, kind: str, *, magnitude: bool = False):
     if magnitude:
         return jnp.all(skip | (v <= hi))
     return jnp.all(skip | ((v >= lo) & (v <= hi)))
+
+
+# --------------------------------------------------------------------------------------
+# showing values: error messages, constructor fields, reprs
+# --------------------------------------------------------------------------------------
+
+
+def plain(value) -> str:
+    """`value` as an error message shows it: a NumPy or JAX scalar as a plain number
+    (``1.0``, not ``np.float64(1.0)``), a tuple, list or small array as a list of plain
+    numbers, a tracer by its shape and dtype, anything else as its `repr`."""
+    if isinstance(value, jax.core.Tracer):
+        return f"<traced {value.dtype}{list(value.shape)}>"
+    if isinstance(value, bool | np.bool_):
+        return repr(bool(value))
+    if isinstance(value, np.generic | np.ndarray | jax.Array):
+        arr = np.asarray(value)
+        if arr.dtype.kind in "biufc":
+            if arr.ndim == 0:
+                return repr(arr.item())
+            if arr.size <= 8:
+                return repr(arr.tolist())
+            return (f"array of shape {arr.shape} ({arr.dtype}), from {arr.ravel()[0].item()!r} "
+                    f"to {arr.ravel()[-1].item()!r}")
+        return repr(value)
+    if isinstance(value, tuple | list):
+        inner = ", ".join(plain(v) for v in value)
+        return f"({inner}{',' if len(value) == 1 else ''})" if isinstance(value, tuple) \
+            else f"[{inner}]"
+    return repr(value)
+
+
+def float_field(name: str, unit: str, *, arms: bool = False):
+    """The converter of a module field that holds a real number (`arms`: a 1-D array of
+    them): the value as a float array (`jaxcontact._solvers.as_float`; integers become the
+    default float, float32 stays float32), or a `TypeError` naming the field, its unit and
+    the value when it is not a number (a string, None, an object); tracers pass."""
+    from ._solvers import as_float
+
+    def convert(x):
+        try:
+            out = as_float(x)
+        except (TypeError, ValueError):
+            what = "1-D array of real numbers" if arms else "real number"
+            raise TypeError(f"`{name}` must be a {what} [{unit}]; got {plain(x)} "
+                            f"({type(x).__name__}).") from None
+        return jnp.atleast_1d(out) if arms else out
+
+    return convert
+
+
+def module_repr(module) -> str:
+    """``Name(field=value, ...)`` of a rheology or profile with the values themselves
+    (``StandardModel(G0=1000000.0, ...)``; equinox shows ``G0=weak_f64[]``): scalars as
+    numbers, small arrays as lists, large arrays and tracers by shape and dtype."""
+    import dataclasses
+
+    parts = []
+    for f in dataclasses.fields(module):
+        if not f.repr:
+            continue
+        value = getattr(module, f.name, None)
+        if isinstance(value, eqx.Module):
+            text = repr(value)
+        elif isinstance(value, jax.core.Tracer) or (
+                isinstance(value, jax.Array | np.ndarray) and np.size(value) > 8):
+            text = eqx.tree_pformat(value)
+        else:
+            text = plain(value)
+        parts.append(f"{f.name}={text}")
+    return f"{type(module).__name__}({', '.join(parts)})"

@@ -4,7 +4,10 @@ Output policy (all commands): nothing is written before the inputs are checked a
 is done; files are written under a temporary name beside the target and renamed into place
 (one rename per file, or one per output folder), so a reader never sees a half-written file;
 an interrupted run (Ctrl-C, SIGTERM) removes its temporary files
-(:func:`register_cleanup`) and leaves what was there before untouched.
+(:func:`register_cleanup`) and leaves what was there before untouched. Output files get
+the ordinary mode (0666 less the umask). An output folder is replaced only when it is
+empty or holds nothing but what an earlier run listed in its manifest (`OutputFolder`),
+and only one run at a time may write it (a lock file beside it).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import pathlib
 import shutil
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 
 __all__ = [
@@ -26,6 +30,10 @@ __all__ = [
     "OutputFolder",
     "register_cleanup",
     "run_cleanups",
+    "note_written",
+    "written_outputs",
+    "temp_beside",
+    "MANIFEST",
 ]
 
 
@@ -154,11 +162,15 @@ def parse_profile(spec: str | None, radius: float | None):
 
 
 # --------------------------------------------------------------------------------------
-# cleanup of temporary outputs on interruption
+# cleanup of temporary outputs on interruption, and what was written
 # --------------------------------------------------------------------------------------
 
 _CLEANUPS: list[Callable[[], None]] = []
 _LOCK = threading.Lock()
+#: held while an output is renamed into place: an interruption waits for it (the renames
+#: take microseconds), so an output is never half swapped
+COMMIT_GUARD = threading.RLock()
+_WRITTEN: list[str] = []
 
 
 def register_cleanup(fn: Callable[[], None]) -> Callable[[], None]:
@@ -174,16 +186,38 @@ def register_cleanup(fn: Callable[[], None]) -> Callable[[], None]:
     return forget
 
 
-def run_cleanups() -> None:
-    """Remove every registered temporary output (called on Ctrl-C / SIGTERM)."""
+def pending_cleanups() -> list[Callable[[], None]]:
+    """The cleanups registered now (to run only those a command adds, see `run_cleanups`)."""
     with _LOCK:
-        fns = list(_CLEANUPS)
-        _CLEANUPS.clear()
-    for fn in fns:
-        try:
-            fn()
-        except OSError:
-            pass
+        return list(_CLEANUPS)
+
+
+def run_cleanups(keep: list[Callable[[], None]] | None = None) -> None:
+    """Remove every registered temporary output and lock (on Ctrl-C / SIGTERM, and when a
+    command ends), except those in `keep` (registered before the command started); waits
+    for an output being renamed into place."""
+    with COMMIT_GUARD:
+        with _LOCK:
+            fns = [f for f in _CLEANUPS if keep is None or f not in keep]
+            for f in fns:
+                _CLEANUPS.remove(f)
+        for fn in fns:
+            try:
+                fn()
+            except OSError:
+                pass
+
+
+def note_written(path) -> None:
+    """Record that `path` (a file or folder) was written completely (renamed into place)."""
+    with _LOCK:
+        _WRITTEN.append(str(path))
+
+
+def written_outputs() -> list[str]:
+    """The outputs this process has written completely, in order (see `note_written`)."""
+    with _LOCK:
+        return list(_WRITTEN)
 
 
 # --------------------------------------------------------------------------------------
@@ -216,50 +250,230 @@ def _check_writable_dir(option: str, parent: pathlib.Path) -> None:
         raise UsageError(f"argument {option}: cannot write in {probe} ({exc.strerror})") from None
 
 
-def atomic_write_text(path, text: str) -> None:
-    """Write `text` to `path` through a temporary file in the same folder and one rename."""
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def temp_beside(path, suffix: str = ".tmp") -> tuple[str, Callable[[], None]]:
+    """A new empty temporary file beside `path` with an ordinary file's mode (0666 less the
+    umask, as `open` gives; `mkstemp` alone makes it private), removed if the command is
+    interrupted. Returns the temporary path and the function that unregisters its removal."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())
     forget = register_cleanup(lambda: os.path.exists(tmp) and os.unlink(tmp))
+    return tmp, forget
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write `text` to `path` through a temporary file in the same folder and one rename
+    (the file gets the ordinary mode, 0666 less the umask)."""
+    path = pathlib.Path(path)
+    tmp, forget = temp_beside(path)
     try:
-        with os.fdopen(fd, "w", newline="") as fh:
+        with open(tmp, "w", newline="") as fh:
             fh.write(text)
-        os.replace(tmp, path)
+        with COMMIT_GUARD:
+            os.replace(tmp, path)
+            note_written(path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
         forget()
 
 
+#: The file in every output folder that lists the files jaxcontact wrote there.
+MANIFEST = ".jaxcontact-manifest.json"
+
+
+def _listed_files(folder: pathlib.Path) -> set[str] | None:
+    """The names `folder`'s manifest lists as written by jaxcontact (None: no valid one)."""
+    import json
+
+    try:
+        doc = json.loads((folder / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    files = doc.get("files") if isinstance(doc, dict) else None
+    if (not isinstance(doc, dict) or doc.get("written_by") != "jaxcontact"
+            or not isinstance(files, list) or not all(isinstance(f, str) for f in files)):
+        return None
+    return {f for f in files if f and "/" not in f and f not in (".", "..")}
+
+
+def foreign_entries(folder: pathlib.Path) -> list[str]:
+    """The entries of an existing folder that jaxcontact did not write: every entry when it
+    holds no manifest, else those the manifest does not list (a listed name that is now a
+    folder counts as foreign too). Empty: the folder may be replaced."""
+    entries = sorted(e.name for e in folder.iterdir())
+    listed = _listed_files(folder)
+    if listed is None:
+        return entries
+    return [e for e in entries
+            if e != MANIFEST and (e not in listed or (folder / e).is_dir()
+                                  and not (folder / e).is_symlink())]
+
+
+def _pid_alive(pid: int) -> bool:
+    if os.name != "posix":  # pragma: no cover - os.kill(pid, 0) is no probe there
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+class _WriteLock:
+    """An exclusive lock on an output path: the file ``.NAME.lock`` beside it, created with
+    ``O_EXCL`` and holding the owner's pid and host. A lock whose process is gone (same
+    host) is stale and taken over; one of a live process is refused (`UsageError`)."""
+
+    def __init__(self, option: str, target: pathlib.Path):
+        self.path = target.with_name(f".{target.name}.lock")
+        self._forget = None
+        import socket
+
+        me = f"{os.getpid()} {socket.gethostname()}\n"
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                if self._stale(socket.gethostname()):
+                    try:
+                        os.unlink(self.path)
+                    except FileNotFoundError:
+                        pass
+                    continue
+                raise UsageError(
+                    f"argument {option}: {target} is being written by another jaxcontact run "
+                    f"({self._owner()}); wait for it to finish or choose another folder (if no "
+                    f"such run exists, remove {self.path})") from None
+            except OSError as exc:
+                raise UsageError(f"argument {option}: cannot create the lock file {self.path} "
+                                 f"({exc.strerror})") from None
+            with os.fdopen(fd, "w") as fh:
+                fh.write(me)
+            self._forget = register_cleanup(self.release)
+            return
+        raise UsageError(f"argument {option}: cannot take the lock {self.path} (it keeps "
+                         "reappearing: another run is starting)")
+
+    def _read(self) -> tuple[int | None, str | None, float]:
+        try:
+            text = self.path.read_text()
+            age = time.time() - self.path.stat().st_mtime
+        except OSError:
+            return None, None, 0.0
+        parts = text.split()
+        try:
+            return int(parts[0]), (parts[1] if len(parts) > 1 else None), age
+        except (IndexError, ValueError):
+            return None, None, age
+
+    def _owner(self) -> str:
+        pid, host, _ = self._read()
+        return f"pid {pid} on {host}" if pid is not None else f"lock file {self.path}"
+
+    def _stale(self, host: str) -> bool:
+        pid, owner_host, age = self._read()
+        if pid is None:  # empty or garbled: a run that is just writing it, unless old
+            return age > 60.0
+        if owner_host not in (None, host):  # another machine (shared file system): unknown
+            return False
+        return not _pid_alive(pid)
+
+    def release(self) -> None:
+        if self._forget is not None:
+            self._forget()
+            self._forget = None
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+
+
 class OutputFolder:
-    """An output folder written all at once: every file or none, no stale files.
+    """An output folder written all at once: every file or none, no stale files, and never
+    a file that jaxcontact did not write deleted.
 
     Checked at construction (before any work): the option must name a folder we may create
-    or replace. A folder that exists must be empty or an earlier output of the same command
-    (it holds `marker`); anything else is refused rather than mixed with or deleted.
-    :meth:`stage` returns a fresh temporary folder beside the target; :meth:`commit` swaps
-    it in (the previous output is removed only after the new one is in place);
-    :meth:`discard` removes the staging folder. Interruptions remove it too.
+    or replace, and no other run may be writing it (a lock file ``.NAME.lock`` beside it,
+    see `_WriteLock`; released when the output is committed or discarded, or the command
+    ends). A folder that exists must be empty or an earlier jaxcontact output whose every
+    entry its manifest (`MANIFEST`, written with the outputs) lists; anything else (a
+    user's ``raw/`` or ``.git/``, or an output of an older version without a manifest) is
+    refused rather than mixed with or deleted. :meth:`stage` returns a fresh temporary
+    folder beside the target; :meth:`commit` writes the manifest of what is in it and swaps
+    it in (the previous output's listed files are removed only after the new one is in
+    place); :meth:`discard` removes the staging folder. Interruptions remove it too.
     """
 
-    def __init__(self, option: str, path, *, marker: str):
+    def __init__(self, option: str, path, *, command: str):
         if path is None or str(path).strip() == "":
             raise UsageError(f"argument {option}: give a folder name")
         self.option = option
         self.path = pathlib.Path(path)
-        self.marker = marker
-        if self.path.exists():
-            if not self.path.is_dir():
-                raise UsageError(f"argument {option}: {self.path} exists and is not a folder")
-            entries = [e.name for e in self.path.iterdir()]
-            if entries and marker not in entries:
-                raise UsageError(
-                    f"argument {option}: {self.path} is not empty and holds no {marker} from an "
-                    "earlier run; choose a new folder (it would be replaced)")
+        self.command = command
+        if self.path.exists() and not self.path.is_dir():
+            raise UsageError(f"argument {option}: {self.path} exists and is not a folder")
         _check_writable_dir(option, self.path.resolve().parent)
         self._tmp: pathlib.Path | None = None
         self._forget = None
+        self._committed = False
+        parent = self.path.resolve().parent
+        self._made = []  # the folders made for the lock, deepest first: removed unless used
+        probe = parent
+        while not probe.exists():
+            self._made.append(probe)
+            probe = probe.parent
+        parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._lock = _WriteLock(option, self.path.resolve())
+        except UsageError:
+            self._unmake()
+            raise
+        self._forget_unmake = register_cleanup(self._unmake)
+        try:
+            self._check_replaceable("")
+        except UsageError:
+            self._done()
+            raise
+
+    def _unmake(self) -> None:
+        """Remove the (empty) folders made for this output, unless it was written."""
+        if self._committed:
+            return
+        for folder in self._made:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+
+    def _check_replaceable(self, when: str) -> None:
+        if not self.path.is_dir():
+            if self.path.exists() or self.path.is_symlink():
+                raise UsageError(f"argument {self.option}: {self.path} exists and is not a "
+                                 f"folder{when}")
+            return
+        foreign = foreign_entries(self.path)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more"
+                                              if len(foreign) > 5 else "")
+            older = ("" if _listed_files(self.path) is not None else
+                     f" (it has no {MANIFEST}: an output written before jaxcontact kept "
+                     "manifests is not recognised either; remove it yourself if it is one)")
+            raise UsageError(
+                f"argument {self.option}: {self.path} holds entries jaxcontact did not write "
+                f"({shown}){when}; an output folder is replaced whole, so it must be new, "
+                f"empty or an earlier jaxcontact output (every entry listed in its "
+                f"{MANIFEST}){older}; choose a new folder")
 
     def stage(self) -> pathlib.Path:
         parent = self.path.resolve().parent
@@ -267,29 +481,60 @@ class OutputFolder:
         self._tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-",
                                                   dir=parent))
         tmp = self._tmp
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; outputs are ordinary folders
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private; outputs are ordinary
         self._forget = register_cleanup(lambda: shutil.rmtree(tmp, ignore_errors=True))
         return tmp
 
     def commit(self) -> pathlib.Path:
+        """Write the manifest of the staged files and rename the staging folder into place.
+        Raises `UsageError` (and replaces nothing) if entries that jaxcontact did not write
+        appeared in the target during the run."""
+        import json
+
+        from jaxcontact import __version__
+
         assert self._tmp is not None, "stage() first"
+        files = sorted(e.name for e in self._tmp.iterdir() if e.name != MANIFEST)
+        doc = {"written_by": "jaxcontact", "command": self.command, "version": __version__,
+               "files": files}
+        (self._tmp / MANIFEST).write_text(json.dumps(doc, indent=1) + "\n")
         target = self.path.resolve()
-        old = None
-        if target.exists():
-            old = target.with_name(f".{target.name}.old-{os.getpid()}")
-            os.replace(target, old)
-        try:
-            os.replace(self._tmp, target)
-        except OSError:
-            if old is not None:
-                os.replace(old, target)
-            raise
+        with COMMIT_GUARD:
+            self._check_replaceable(" (they appeared while this run worked; nothing was "
+                                    "replaced)")
+            old = None
+            if target.exists():
+                old = target.with_name(f".{target.name}.old-{os.getpid()}")
+                os.replace(target, old)
+            try:
+                os.replace(self._tmp, target)
+            except OSError:
+                if old is not None:
+                    os.replace(old, target)
+                raise
+            note_written(self.path)
+            self._committed = True
+            self._done()
         if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-        self._done()
+            self._remove_old(old)
         return self.path
+
+    @staticmethod
+    def _remove_old(old: pathlib.Path) -> None:
+        """Remove the previous output: only the files its manifest lists, then the folder
+        (left in place, as a hidden folder beside the output, if anything else is in it)."""
+        listed = _listed_files(old) or set()
+        for name in listed | {MANIFEST}:
+            p = old / name
+            if p.is_symlink() or p.is_file():
+                try:
+                    p.unlink()
+                except OSError:
+                    pass
+        try:
+            old.rmdir()
+        except OSError:
+            pass
 
     def discard(self) -> None:
         if self._tmp is not None:
@@ -301,3 +546,6 @@ class OutputFolder:
             self._forget()
         self._tmp = None
         self._forget = None
+        self._lock.release()
+        self._forget_unmake()
+        self._unmake()

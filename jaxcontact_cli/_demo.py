@@ -37,7 +37,7 @@ def run(args) -> int:
     except ImportError as err:  # pragma: no cover - depends on the environment
         raise UsageError("the demo needs matplotlib: pip install 'jaxcontact[plot]'") from err
 
-    folder = OutputFolder("--out", args.out, marker="pulloff.csv")
+    folder = OutputFolder("--out", args.out, command="demo")
     R, d0, dg = 1e-4, 4e-6, 0.05
     G0, G1, eta1 = 1e6, 2e5, 1e4
     rheology = jc.StandardModel(G0=G0, G1=G1, eta1=eta1)

@@ -11,7 +11,9 @@ file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-consta
 with an instrument file overrides the file's value and selects the compliant loading model.
 
 Order of work: every argument and input file is checked, the output folder is checked
-(it must be new, empty, or an earlier fit output: it is replaced, never mixed), the fit
+(it must be new, empty, or an earlier jaxcontact output holding only the files its
+manifest lists: it is replaced, never mixed, and a file jaxcontact did not write is never
+deleted; one run at a time per folder, see :class:`._common.OutputFolder`), the fit
 runs, and the report (``parameters.json``, ``parameters.csv``, ``fit.csv``, ``fit.png``)
 is written into a temporary folder beside ``DIR`` and renamed into place: a failed or
 interrupted run leaves no file and no stale file. A fit that did not converge is written
@@ -83,9 +85,10 @@ def add_fit_arguments(parser):
                              "or pyramid3:DEG[,face|edge] (half-angle to a face (default) or "
                              "an edge, degrees: the equivalent cone), flat:A (punch radius "
                              "[m]) or power:C,N (f = C r^N)")
-    parser.add_argument("--model", choices=("relaxed", "history"), default="history",
-                        help="history: the whole approach-hold-lift (default); relaxed: the "
-                             "retract after a hold long enough to relax")
+    parser.add_argument("--model", choices=("relaxed", "history"), default="relaxed",
+                        help="relaxed (default, as fitting.fit): the retract after a hold "
+                             "long enough to relax (the report warns when the curves have no "
+                             "such hold); history: the whole approach-hold-lift")
     parser.add_argument("--rheology", default="standard", metavar="standard|prony:N|auto",
                         help="standard model (G0 [Pa], G1 [Pa], eta1 [Pa s]), Prony series "
                              "with N arms (G_inf, G_k [Pa], tau_k [s]), or auto: standard and "
@@ -98,10 +101,29 @@ def add_fit_arguments(parser):
                              "--bounds eta1=1:1e4")
     parser.add_argument("--initial", action="append", default=[], metavar="NAME=VALUE",
                         help="initial value of a parameter (SI units; repeatable)")
-    parser.add_argument("--contact-point", choices=("detect", "fit", "none"), default=None,
-                        help="detect: use the detected contact point; fit: detect, then fit an "
-                             "indentation offset [m] (default for instrument files); none: the "
-                             "data are indentation already (0 at contact)")
+    parser.add_argument("--contact-point", choices=("fit", "detect", "none", "fixed"),
+                        default=None,
+                        help="as fitting.fit's contact_point: fit: detect, then fit an "
+                             "indentation offset [m] (default for instrument files); detect: "
+                             "use the detected contact point as it is; none: the data are "
+                             "indentation already (0 at contact; default for tables); fixed: "
+                             "older spelling of detect")
+    parser.add_argument("--threshold", type=float, default=None, metavar="X",
+                        help="contact detection: the force must exceed X times the baseline "
+                             "noise (default 5; fitting.preprocess threshold)")
+    parser.add_argument("--min-run", type=int, default=None, metavar="N",
+                        help="contact detection: for N consecutive samples (default 5; "
+                             "fitting.preprocess min_run)")
+    parser.add_argument("--retract-baseline", default=None,
+                        choices=("auto", "include", "exclude", "separate"),
+                        help="the retract's free tail in the force baseline: auto (default: "
+                             "for --baseline linear when it is free and consistent), include, "
+                             "exclude, or separate (its own constant offset: a retract offset "
+                             "by viscous drag; recommended for force maps)")
+    parser.add_argument("--indentation-range", default=None, metavar="LO:HI",
+                        help="fit only the samples with indentation in [LO, HI] [m] (like "
+                             "nanite's range_x), e.g. 0:2e-6; the model still runs through "
+                             "the whole curve")
     parser.add_argument("--force-offset", action="store_true",
                         help="also fit a force offset [N] (a baseline error)")
     parser.add_argument("--baseline", choices=("constant", "linear", "none"), default=None,
@@ -133,8 +155,9 @@ def add_fit_arguments(parser):
                              "200); a fit that stops at this limit is written with "
                              "\"converged\": false and exit status 3")
     parser.add_argument("--max-samples", type=int, default=None, metavar="N",
-                        help="resample each segment to at most N samples (default: the "
-                             "library's)")
+                        help="subsample each curve (all its segments together) to at most N "
+                             "samples, N >= 4, each weighted by the measured samples it stands "
+                             "for (default 1000 for --model relaxed, 600 for history)")
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--each", action="store_true",
                        help="fit every curve on its own, in batched compiled calls (default "
@@ -183,6 +206,14 @@ def load_inputs(args) -> tuple[list, bool]:
         options["baseline"] = args.baseline
     if args.contact_point == "none":
         options["contact_point"] = "none"
+    elif args.contact_point is not None:  # detect, fit, fixed: the loader detects it
+        options["contact_point"] = "detect"
+    if args.threshold is not None:
+        options["threshold"] = args.threshold
+    if args.min_run is not None:
+        options["min_run"] = args.min_run
+    if args.retract_baseline is not None:
+        options["retract_baseline"] = _RETRACT_BASELINE[args.retract_baseline]
     for name in ("sensitivity", "sample_rate"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
@@ -200,7 +231,7 @@ def load_inputs(args) -> tuple[list, bool]:
             raise UsageError(f"argument --units: {f} is not a table (CSV/TSV); its units "
                              "come from the file") from None
         except (ValueError, ImportError, OSError) as exc:
-            raise UsageError(f"FILE {f}: {_without_path(exc, p, f)}") from None
+            raise UsageError(f"FILE {f}: {_cli_names(_without_path(exc, p, f))}") from None
         if len(loaded) == 1 and isinstance(loaded[0], fitting.FailedCurve):
             raise UsageError(f"FILE {f}: {_without_path(loaded[0].reason, p, f)}")
         multi = multi or len(loaded) > 1
@@ -213,6 +244,19 @@ def load_inputs(args) -> tuple[list, bool]:
                 raise UsageError(f"argument --segments: {f}: {exc}") from None
         curves += loaded
     return curves, multi
+
+
+#: ``--retract-baseline`` to `fitting.preprocess`'s `retract_baseline`
+_RETRACT_BASELINE = {"auto": None, "include": True, "exclude": False, "separate": "separate"}
+
+
+def _cli_names(msg: str) -> str:
+    """A loader message with its option names as the command line spells them."""
+    msg = msg.replace("(give baseline= or contact_point=)",
+                      "(give --baseline or --contact-point detect/fit)")
+    for name in ("threshold", "min_run", "retract_baseline"):
+        msg = msg.replace(name, "--" + name.replace("_", "-"))
+    return msg
 
 
 def _without_path(exc, p, f) -> str:
@@ -239,9 +283,21 @@ def _check(args):
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
     if args.max_steps is not None and args.max_steps < 1:
         raise UsageError(f"argument --max-steps: must be an integer >= 1; got {args.max_steps}")
-    if args.max_samples is not None and args.max_samples < 2:
-        raise UsageError(f"argument --max-samples: must be an integer >= 2; got "
+    if args.max_samples is not None and args.max_samples < 4:
+        raise UsageError(f"argument --max-samples: must be an integer >= 4; got "
                          f"{args.max_samples}")
+    check_number("--threshold", args.threshold, "noise sigma")
+    if args.min_run is not None and args.min_run < 1:
+        raise UsageError(f"argument --min-run: must be an integer >= 1; got {args.min_run}")
+    if args.contact_point == "none" and (args.threshold is not None
+                                         or args.min_run is not None):
+        raise UsageError("argument --threshold/--min-run: contact detection options; not "
+                         "with --contact-point none")
+    indentation_range = None
+    if args.indentation_range is not None:
+        indentation_range = parse_assignments(
+            "--indentation-range", [f"range={args.indentation_range}"],
+            ranges=True)["range"]
     import fitting
 
     if args.rheology != "auto":
@@ -252,13 +308,13 @@ def _check(args):
     fixed = parse_assignments("--fix", args.fix)
     bounds = parse_assignments("--bounds", args.bounds, ranges=True)
     initial = parse_assignments("--initial", args.initial)
-    return profile, radius, fixed, bounds, initial
+    return profile, radius, fixed, bounds, initial, indentation_range
 
 
 def run(args) -> int:
     """Run a fit from parsed arguments; returns the exit status (0: converged fit)."""
-    profile, radius, fixed, bounds, initial = _check(args)
-    folder = OutputFolder("--out", args.out, marker="parameters.json")
+    profile, radius, fixed, bounds, initial, indentation_range = _check(args)
+    folder = OutputFolder("--out", args.out, command="fit")
     curves, multi = load_inputs(args)
     each = args.each or (multi and not args.joint)
     _enable_cache()
@@ -273,13 +329,14 @@ def run(args) -> int:
     options = dict(model=args.model, rheology=args.rheology, fixed=fixed or None,
                    bounds=bounds or None, initial=initial or None,
                    spring_constant=args.spring_constant, max_samples=args.max_samples,
-                   cells=args.cells, progress=not args.quiet, force_offset=args.force_offset)
+                   cells=args.cells, progress=not args.quiet, force_offset=args.force_offset,
+                   indentation_range=indentation_range)
     if args.starts is not None:
         options["n_starts"] = args.starts
     if args.max_steps is not None:
         options["max_steps"] = args.max_steps
     if args.contact_point is not None:
-        options["contact_point"] = "fit" if args.contact_point == "fit" else "fixed"
+        options["contact_point"] = args.contact_point  # fitting.fit's vocabulary
     if radius is not None:
         options["radius"] = radius
     else:

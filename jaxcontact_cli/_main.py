@@ -11,19 +11,21 @@ line on stderr; ``--debug`` adds the traceback. Progress and logs go to stderr; 
 Interruption: the command runs in a worker thread while the main thread waits, so Ctrl-C
 and SIGTERM are handled at once, also while XLA compiles: the temporary outputs are removed
 (outputs are only ever renamed into place when complete, see :mod:`._common`) and the
-process ends without waiting for the compiler.
+process ends without waiting for the compiler. The message says what was complete: nothing,
+or (for a signal after an output was renamed into place) the outputs written.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import sys
 import threading
 import traceback
 
-from ._common import UsageError, run_cleanups
+from ._common import UsageError, pending_cleanups, run_cleanups, written_outputs
 
 __all__ = ["main", "console_main", "build_parser"]
 
@@ -32,10 +34,27 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An `argparse.ArgumentParser` that reads every negative number as a value, not an
+    option: argparse (before Python 3.13) takes ``--radius -1e-5`` for an option
+    ``-1e-5`` and says "expected one argument"; the value then reaches the command's own
+    range check, whose message names the option and the allowed range. A range that starts
+    with a negative number (``--indentation-range -1e-7:2e-6``) is a value too. (No option
+    of the command line looks like a negative number.)"""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
+
+_NEGATIVE_NUMBER = re.compile(
+    r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(:.*)?$|^-(inf|infinity|nan)(:.*)?$", re.IGNORECASE)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import _demo, _fit, _simulate, _sweep
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jaxcontact",
         description=(
             "Adhesive contact of viscoelastic bodies (MDR, energetic detachment criterion): "
@@ -45,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     from jaxcontact import __version__  # imports jax: after the signal handlers are set
 
     parser.add_argument("--version", action="version", version=f"jaxcontact {__version__}")
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument("--debug", action="store_true",
                         help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -56,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _dispatch(args: argparse.Namespace) -> int:
     name = f"jaxcontact {args.command}"
+    before = pending_cleanups()
     try:
         return int(args.func(args) or 0)
     except UsageError as err:
@@ -76,6 +96,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         _log(f"{name}: error: {type(err).__name__}: {_one_line(err)} "
              "(run with --debug for the traceback)")
         return 1
+    finally:
+        run_cleanups(keep=before)  # what the command left registered: its output locks
 
 
 def _one_line(err: BaseException) -> str:
@@ -115,6 +137,16 @@ def main(argv: list[str] | None = None) -> int:
     return _dispatch(args)
 
 
+def interrupted_message() -> str:
+    """What an interruption leaves: the outputs already complete (renamed into place), or
+    that nothing was written or changed."""
+    done = written_outputs()
+    if not done:
+        return "interrupted; no output was written or changed"
+    return (f"interrupted after the output was complete: wrote {', '.join(done)}; "
+            "nothing else was written or changed")
+
+
 class _Terminated(Exception):
     pass
 
@@ -133,8 +165,8 @@ def _on_signal(signum, frame):  # pragma: no cover - exercised in a subprocess t
 
 
 def _interrupted(command: str, signum: int):  # pragma: no cover - subprocess tests
-    run_cleanups()
-    _log(f"jaxcontact {command}: interrupted; no output was written or changed")
+    run_cleanups()  # waits for an output being renamed into place
+    _log(f"jaxcontact {command}: {interrupted_message()}")
     sys.stdout.flush()
     os._exit(143 if signum == signal.SIGTERM else 130)  # not waiting for a compilation
 
@@ -172,12 +204,15 @@ def console_main() -> None:  # pragma: no cover - exercised in subprocess tests
             worker.join(0.1)
             if _SIGNALLED:
                 _interrupted(args.command, _SIGNALLED[0])
+        # the command is done: a signal from here on is recorded (never the default action,
+        # which would end the process with -15 and no word about the complete output)
+        _RAISE[0] = False
+        if _SIGNALLED:
+            _interrupted(args.command, _SIGNALLED[0])
     except (KeyboardInterrupt, _Terminated) as err:
         _interrupted(args.command,
                      signal.SIGTERM if isinstance(err, _Terminated) else signal.SIGINT)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    del previous  # the handlers stay until the process ends (see above)
     if "err" in box:
         err = box["err"]
         if isinstance(err, SystemExit):

@@ -13,10 +13,16 @@ from __future__ import annotations
 import math
 import os
 import sys
-import tempfile
 from pathlib import Path
 
-from ._common import UsageError, check_number, check_output_file, register_cleanup
+from ._common import (
+    COMMIT_GUARD,
+    UsageError,
+    check_number,
+    check_output_file,
+    note_written,
+    temp_beside,
+)
 from ._simulate import add_material_arguments
 
 __all__ = ["add_parser", "run", "parse_range"]
@@ -234,17 +240,6 @@ def _start_jax(args):
     return jax.process_index()
 
 
-def _temp_beside(path: Path, suffix: str):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; outputs are ordinary files
-    forget = register_cleanup(lambda: os.path.exists(tmp) and os.unlink(tmp))
-    return tmp, forget
-
-
 def _plot(ds, path, summary, x, log):
     import matplotlib
 
@@ -342,16 +337,19 @@ def run(args) -> int:
     failed = int(np.sum(~np.isin(status, list(ok))))
     attached = int(np.sum(status == int(jc.RESULTS.in_contact._value)))
 
-    tmp_nc, forget_nc = _temp_beside(out, ".tmp")
+    tmp_nc, forget_nc = temp_beside(out, ".tmp")
     tmp_png = forget_png = None
     try:
         ds.to_netcdf(tmp_nc, engine="h5netcdf")
         if plot is not None:
-            tmp_png, forget_png = _temp_beside(plot, ".tmp")
+            tmp_png, forget_png = temp_beside(plot, ".tmp")
             _plot(ds, tmp_png, args.plot_summary, args.plot_x, log)
-        os.replace(tmp_nc, out)
-        if plot is not None:
-            os.replace(tmp_png, plot)
+        with COMMIT_GUARD:
+            os.replace(tmp_nc, out)
+            note_written(out)
+            if plot is not None:
+                os.replace(tmp_png, plot)
+                note_written(plot)
     finally:
         for tmp, forget in ((tmp_nc, forget_nc), (tmp_png, forget_png)):
             if tmp is not None and os.path.exists(tmp):

@@ -389,29 +389,6 @@ def test_output_folder_checked_before_work(tmp_path, capsys):
         assert rc == 2 and "cannot write" in capsys.readouterr().err
 
 
-def test_output_folder_replaced_whole(tmp_path):
-    from jaxcontact_cli._common import OutputFolder
-
-    out = tmp_path / "run"
-    first = OutputFolder("--out", out, marker="a.txt")
-    stage = first.stage()
-    (stage / "a.txt").write_text("1")
-    (stage / "b.png").write_text("old figure")
-    first.commit()
-    second = OutputFolder("--out", out, marker="a.txt")  # an earlier output may be replaced
-    stage = second.stage()
-    (stage / "a.txt").write_text("2")
-    second.commit()
-    assert sorted(p.name for p in out.iterdir()) == ["a.txt"]  # no stale b.png
-    assert (out / "a.txt").read_text() == "2"
-    third = OutputFolder("--out", out, marker="a.txt")
-    stage = third.stage()
-    (stage / "a.txt").write_text("3")
-    third.discard()  # a failed run changes nothing and leaves nothing
-    assert (out / "a.txt").read_text() == "2"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
-
-
 def test_interrupt_during_imports_is_not_lost(tmp_path):
     # SIGINT while jax is being imported (before the command runs): recorded, and the
     # command stops with 130 after the imports; formerly a library swallowed it and the

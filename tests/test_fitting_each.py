@@ -193,7 +193,9 @@ def test_force_map_file_through_the_command_line(tmp_path, capsys):
                "--model", "relaxed", "--starts", "4", "--quiet", "--out", str(out)])
     assert rc == 0, capsys.readouterr().err
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["map.csv", "map.nc", "map.png", "parameters.json"]
+    assert names == [".jaxcontact-manifest.json", "map.csv", "map.nc", "map.png",
+                     "parameters.json"]  # the manifest lists what the run wrote
+    assert json.loads((out / names[0]).read_text())["files"] == names[1:]
     summary = json.loads((out / "parameters.json").read_text())
     assert summary["curves"] == 4 and summary["failed"] == 0
     import xarray as xr

@@ -37,6 +37,7 @@ import numpy as np
 from .._probes import Sphere
 from .._profiles import Cone, FlatPunch, Parabola
 from .._rheology import PronySeries, StandardModel
+from .._validate import plain
 
 __all__ = ["Parameter", "ParameterSpec", "parameter_info", "parse_spec"]
 
@@ -264,7 +265,7 @@ def _check_range(name, arr):
         hi = f"{info.upper:g})" if info.upper is not None else "inf)"
         where = f" (entry {i})" if arr.ndim else ""
         raise ValueError(f"sweep parameter `{name}` must lie in {lo}, {hi} [{unit}]; got "
-                         f"{np.ravel(arr)[i]!r}{where}.")
+                         f"{plain(np.ravel(arr)[i])}{where}.")
 
 
 def parse_spec(grid, points, *, required, optional) -> ParameterSpec:

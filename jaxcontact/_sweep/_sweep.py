@@ -8,7 +8,7 @@ import functools
 import numpy as np
 
 from .._solution import RESULTS
-from .._validate import check_plausible, plausibility_enabled
+from .._validate import check_plausible, plain, plausibility_enabled
 from .._version import __version__
 from ._models import AbstractSweepModel, RelaxedStart
 from ._parameters import parameter_info, parse_spec, scale_factors
@@ -138,9 +138,9 @@ def sweep(
         raise ValueError(f"`precision` must be 'float32' or 'float64'; got {precision!r}.")
     if chunk_size is not None and (not isinstance(chunk_size, int | np.integer)
                                    or chunk_size < 1):
-        raise ValueError(f"`chunk_size` must be a positive integer; got {chunk_size!r}.")
+        raise ValueError(f"`chunk_size` must be a positive integer; got {plain(chunk_size)}.")
     if memory_limit is not None and not memory_limit > 0:
-        raise ValueError(f"`memory_limit` [bytes] must be > 0; got {memory_limit!r}.")
+        raise ValueError(f"`memory_limit` [bytes] must be > 0; got {plain(memory_limit)}.")
     spec = parse_spec(grid, points, required=model.required, optional=model.optional)
 
     # ---- the points in their own units (float64) --------------------------------------------

@@ -552,7 +552,7 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
     flagged = assess(result, max_steps=max_steps)  # quality per segment, flags, convergence
     if warn:
         for m in flagged:
-            warnings.warn(m, ModelValidityWarning, stacklevel=4)
+            warn_at_caller(m, ModelValidityWarning)
     show(f"done: chi2_red = {result.reduced_chi2:.4g}, R^2 = {result.r_squared:.5f}, "
          f"R^2 in contact = {result.r_squared_contact:.5f}")
     return result

@@ -49,10 +49,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import warnings
 
 import numpy as np
 
+from ._caller import warn_at_caller
 from ._curve import DataError
 from ._prepare import SEGMENTS, noise_level
 from ._preprocess import _detect_index
@@ -205,14 +205,18 @@ def convergence(converged: bool, steps: int, max_steps: int | None, *,
 
 def check_contact_signal(curves, spec) -> None:
     """`ValueError` naming the curve when its data show no contact (see the module
-    docstring): the approach/hold force never stays above 5σ for 5 samples (history
-    model, or any curve with those segments fitted), or $|F|$ on a retract-only curve."""
+    docstring): the force of the measured approach and hold never stays above 5σ for 5
+    samples (any model), or $|F|$ on a retract-only curve."""
     for n, c in enumerate(curves):
         names = c.segment_names
         seg = np.asarray(c.segment)
         f = np.asarray(c.force, dtype=float)
-        pressed = [names.index(s) for s in ("approach", "hold") if s in names]
-        if spec.model == "history" and pressed:
+        # a measured approach or hold (a loader's inferred one-sample approach at the top of
+        # a pure lift is none) shows whether the tip pressed on the sample, whichever model
+        # is fitted: a relaxed fit of a curve that never pressed has no contact either
+        pressed = [names.index(s) for s in ("approach", "hold")
+                   if s in names and np.count_nonzero(seg == names.index(s)) > 1]
+        if pressed:
             part, what = f[np.isin(seg, pressed)], "approach and hold"
         else:
             part, what = np.abs(f[seg == names.index("retract")] if "retract" in names
@@ -304,7 +308,7 @@ def warning_kinds(results) -> list[tuple[str, int, str]]:
     return sorted(((k, n, ex) for k, (n, ex) in kinds.items()), key=lambda x: -x[1])
 
 
-def warn_summary(results, *, stacklevel: int = 3) -> None:
+def warn_summary(results) -> None:
     """One warning per kind for many fits (:func:`warning_kinds`): the count and an example;
     :class:`IdentifiabilityWarning` for parameters not determined or at a bound, else
     :class:`ModelValidityWarning`."""
@@ -313,6 +317,5 @@ def warn_summary(results, *, stacklevel: int = 3) -> None:
     total = sum(r is not None for r in results)
     for kind, n, example in warning_kinds(results):
         ident = ("not determined" in kind or "bound (" in kind or "too few samples" in kind)
-        warnings.warn(f"{n} of {total} fitted curves: {example}",
-                      IdentifiabilityWarning if ident else ModelValidityWarning,
-                      stacklevel=stacklevel)
+        warn_at_caller(f"{n} of {total} fitted curves: {example}",
+                       IdentifiabilityWarning if ident else ModelValidityWarning)

@@ -133,8 +133,7 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     with paths["csv"].open() as fh:
         rows = list(csv.DictReader(fh))
     assert [r["status"] for r in rows] == ["ok", "failed", "ok", "failed", "ok"]
-    for k in (0, 2, 4):  # each curve's own warning is kept (the relaxed model, no hold)
-        assert "no curve has a hold" in rows[k]["warnings"]
+    for k in (0, 2, 4):
         assert float(rows[k]["radius_m"]) == R and rows[k]["profile"] == "Parabola"
         assert rows[k]["contact_point"] == "fixed" and rows[k]["convergence"] == "converged"
         # the retract's quality, and R² of the retract = R² of the whole (one segment)
@@ -149,8 +148,6 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     table = json.loads(paths["json"].read_text())
     assert table["settings"]["radius_m"] == R and table["settings"]["model"] == "relaxed"
     assert table["ok"] == 3 and table["flagged"] == 0
-    (hold,) = [w for w in table["warnings"] if "hold" in w["kind"]]
-    assert hold["curves"] == 3
     import xarray as xr
 
     ds = xr.load_dataset(paths["netcdf"], engine="h5netcdf")
@@ -162,16 +159,40 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     assert "3 ok, 0 flagged" in text and "2 failed" in text
     g0 = [r["G0_Pa"] for r in each.results if r is not None]
     assert f"{np.median(g0):12.5g}   (ok 3)" in text
-    assert "3x: the relaxed model assumes" in text
 
 
-def test_fit_each_warns_once_per_kind(curves):
-    # per-curve warnings are not repeated for every curve: one warning with the count
+def _with_approach(c, k=6):
+    """`c` with a measured approach of `k` samples straight into the lift (no hold): the
+    relaxed model's assumption is contradicted, and each fit warns so."""
+    t_app = c.time[0] - (c.time[1] - c.time[0]) * np.arange(k, 0, -1)
+    return fitting.Curve(
+        time=np.r_[t_app, c.time],
+        displacement=np.r_[np.linspace(0.0, c.displacement[0], k + 1)[:-1], c.displacement],
+        force=np.r_[np.linspace(0.0, c.force[0], k + 1)[:-1], c.force],
+        segment=np.r_[np.zeros(k, int), np.ones(len(c), int)],
+        segment_names=("approach", "retract"), source=c.source, metadata=c.metadata)
+
+
+def test_fit_each_warns_once_per_kind_and_keeps_each_curves_warning(curves, tmp_path):
+    # per-curve warnings are not repeated for every curve: one warning with the count; each
+    # curve keeps its own in the map outputs
+    unheld = [_with_approach(c) for c in curves]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        fitting.fit_each(curves, radius=R, n_starts=STARTS, chunk=2, progress=False)
-    hold = [str(w.message) for w in caught if "no curve has a hold" in str(w.message)]
-    assert len(hold) == 1 and hold[0].startswith("3 of 3 fitted curves")
+        each = fitting.fit_each(unheld, radius=R, n_starts=STARTS, chunk=2, progress=False)
+    hold = [str(w.message) for w in caught if "an approach and no hold" in str(w.message)]
+    assert len(hold) == 1 and hold[0].startswith("3 of 3 fitted curves"), hold
+    assert caught[0].filename == __file__  # attributed to the caller's line
+    paths = fitting.write_each_report(each, tmp_path)
+    import csv
+
+    with paths["csv"].open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert all("an approach and no hold" in r["warnings"] for r in rows)
+    table = json.loads(paths["json"].read_text())
+    (kind,) = [w for w in table["warnings"] if "hold" in w["kind"]]
+    assert kind["curves"] == 3
+    assert "3x: the relaxed model assumes" in each.summary()
 
 
 def test_bad_options_are_named(curves):

@@ -104,7 +104,7 @@ from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
 from ._solution import RESULTS
 from ._solvers import as_float, floats_to_arrays, safe_div
-from ._validate import check_finite, check_positive, check_times, is_concrete
+from ._validate import check_finite, check_positive, check_times, error_if, is_concrete
 
 __all__ = [
     "BEMGrid",
@@ -588,7 +588,7 @@ def bem_contact(
                                           None if force is None else as_float(force), grid,
                                           as_float(effective_modulus))), tol, max_iter)
     if throw:
-        out = eqx.error_if(out, ~out[3], "BEM: the constrained CG did not converge (raise "
+        out = error_if(out, ~out[3], "BEM: the constrained CG did not converge (raise "
                            "`max_iter` or `tol`).")
     return out[:3]
 
@@ -778,13 +778,13 @@ def bem_simulate(
         0 if force is None and stiffness is None else max(int(max_newton), 1), adhesive,
         int(refine_steps))
     if throw:
-        sol = eqx.error_if(
+        sol = error_if(
             sol,
             sol.result == RESULTS.solver_failed,
             "BEM: a constrained-CG solve or the cell rule did not converge (raise `max_iter`, "
             "`max_rounds`, `max_newton` or `tol`).",
         )
-        sol = eqx.error_if(
+        sol = error_if(
             sol,
             sol.stats["touches_edge"],
             "BEM: the contact reached the edge of the grid; enlarge `grid.extent`.",

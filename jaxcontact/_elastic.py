@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._profiles import AbstractProfile, front_displacement, hess_coefficient
-from ._solution import RESULTS, fold_results, is_error
+from ._solution import RESULTS, fold_results, is_error, raise_if_error
 from ._solvers import as_float, cast_floats, float_dtype
 from ._validate import (
     Constraint,
@@ -107,7 +107,7 @@ def _finish(out, checks, entry_ok, entry_item, *, throw):
         (jnp.all(finite | jnp.logical_not(entry_ok)), RESULTS.non_finite_result),
     ])
     if throw:
-        return result.error_if(out, is_error(result))
+        return raise_if_error(out, result)
     return jnp.where(jnp.logical_not(is_error(scalar)) & entry_ok & finite, out, jnp.nan)
 
 
@@ -339,7 +339,7 @@ def pull_off(
         result = fold_results(RESULTS.successful, checks)
         if throw:
             out = PullOff(radius=a, displacement=d, force=F, result=result)
-            return result.error_if(out, is_error(result))
+            return raise_if_error(out, result)
         bad = is_error(result)
         nan = jnp.asarray(jnp.nan, dtype)
         return PullOff(radius=jnp.where(bad, nan, a), displacement=jnp.where(bad, nan, d),

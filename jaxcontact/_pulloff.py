@@ -63,8 +63,8 @@ from ._solution import (
     ContactSolution,
     RetractDetails,
     fold_results,
-    is_error,
     nan_where,
+    raise_if_error,
 )
 from ._solvers import as_float, cast_floats, float_dtype, smallest
 from ._validate import (
@@ -249,7 +249,7 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     result = fold_results(sol.result, checks)
     sol = eqx.tree_at(lambda s: s.result, sol, result)
     if throw:
-        return result.error_if(sol, is_error(result))
+        return raise_if_error(sol, result)
     # a lane with invalid input: NaN (not numbers that look plausible)
     return nan_where(jnp.logical_not(inputs_ok), sol)
 

@@ -9,6 +9,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._validate import branched_error_if
+
 __all__ = [
     "RESULTS",
     "ContactSolution",
@@ -18,6 +20,7 @@ __all__ = [
     "fold_results",
     "is_error",
     "nan_where",
+    "raise_if_error",
 ]
 
 
@@ -89,6 +92,14 @@ def is_error(result: RESULTS) -> Array:
     ok = ok | (result == RESULTS.in_contact)
     ok = ok | (result == RESULTS.successful)
     return jnp.logical_not(ok)
+
+
+def raise_if_error(x, result: RESULTS):
+    """`x` with a run-time check that raises the message of `result` where it is an error
+    (`throw=True`); the check survives `jax.grad`/`jax.jacfwd` under `jit`
+    (`_validate.branched_error_if`)."""
+    return branched_error_if(x, is_error(result), result._value,
+                             result._enumeration._index_to_message)
 
 
 def nan_where(bad, sol):

@@ -11,6 +11,12 @@ Three layers, all naming the parameter, its unit and the allowed range:
   `jit`/`vmap` with invalid parameters raise at run time (they have no `.result`). Inside the
   entry functions, which report the same problems per lane, the guard is off (`unchecked`).
 
+Every run-time check goes through `error_if`/`branched_error_if` here (not `equinox.error_if`
+directly): their check survives differentiation. `equinox.error_if` passes tangents through
+unchecked, so under `jax.jit(jax.grad(f))` or `jax.jit(jax.jacfwd(f))`, where the primal
+output is unused, the check was removed as dead code and a bad input gave a NaN or a plausible
+gradient instead of an error.
+
 **Plausibility of units.** All inputs are SI. Values far outside the range of their unit
 (`PLAUSIBLE`, e.g. a depth of 4000 m: nanometres given as metres) are reported as an error
 (`ValueError` eagerly, `RESULTS.implausible_input` per lane). For unusual regimes switch the
@@ -39,7 +45,9 @@ __all__ = [
     "check_domain_plausible",
     "check_positive",
     "check_times",
+    "branched_error_if",
     "domain_ok",
+    "error_if",
     "domain_plausible",
     "guarded",
     "is_concrete",
@@ -185,6 +193,48 @@ class Condition(NamedTuple):
 
 
 # --------------------------------------------------------------------------------------
+# run-time errors that survive differentiation
+# --------------------------------------------------------------------------------------
+
+
+def error_if(x, pred, msg: str):
+    """`x` unchanged, with a run-time check that raises `msg` where `pred` holds (any lane
+    under `vmap`), like `equinox.error_if`, but also under `jax.grad`/`jax.jacfwd` inside
+    `jit` (see `branched_error_if`)."""
+    return branched_error_if(x, pred, 0, (msg,))
+
+
+def branched_error_if(x, pred, index, msgs):
+    """As `equinox.branched_error_if` (raise `msgs[index]` where `pred`), with the check
+    also attached to the tangents: the tangent of every floating leaf of `x` is multiplied
+    by `1 + z`, where `z` is a zero computed behind the same check from the primal values.
+    A derivative (forward or reverse mode) therefore depends on the check, which is no
+    longer removed as dead code when only the derivative is used; the tangent map stays
+    linear (a product with a primal value), so `grad`, `jacfwd`, `jacrev` and `vmap` compose.
+    """
+    return _checked(x, pred, index, msgs=tuple(msgs))
+
+
+@eqx.filter_custom_jvp
+def _checked(x, pred, index, *, msgs):
+    return eqx.branched_error_if(x, pred, index, msgs)
+
+
+@_checked.def_jvp
+def _checked_jvp(primals, tangents, *, msgs):
+    x, pred, index = primals
+    tx = tangents[0]
+    out, zero = eqx.branched_error_if((x, jnp.zeros(())), pred, index, msgs)
+
+    def gate(t):
+        if t is None:
+            return None
+        return t * (1 + zero).astype(t.dtype)
+
+    return out, jax.tree_util.tree_map(gate, tx, is_leaf=lambda t: t is None)
+
+
+# --------------------------------------------------------------------------------------
 # guarded methods of profiles and rheologies
 # --------------------------------------------------------------------------------------
 
@@ -248,7 +298,7 @@ def guarded(method):
         with unchecked():  # one check, on the outermost call
             out = method(self, *args, **kwargs)
             ok = domain_ok(self)
-        return eqx.error_if(out, jnp.logical_not(ok), domain_message(self))
+        return error_if(out, jnp.logical_not(ok), domain_message(self))
 
     return wrapper
 

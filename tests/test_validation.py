@@ -6,6 +6,8 @@ Compiled functions are shared (module fixtures) and the histories short, so that
 stays cheap; `benchmarks/fuzz_forward.py` runs the long version of these checks.
 """
 
+import re
+
 import diffrax
 import equinox as eqx
 import jax
@@ -333,3 +335,98 @@ def test_plausibility_block_is_local_to_its_context_and_the_session_switch_globa
     finally:
         jc.plausibility_checks(True)
     assert plausibility_enabled()
+
+
+# --------------------------------------------------------------------------------------
+# throw=True under differentiation (jit(grad), jit(jacfwd)); per-lane .result under
+# jit(vmap(grad)) with throw=False
+# --------------------------------------------------------------------------------------
+
+# one bad value of every kind a parameter vector (G0, G1, eta1, R, dgamma, d0, v) can carry,
+# including the two that gave a plausible gradient instead of an error (a depth of 4000 m,
+# G0 = 1e40 Pa)
+BAD_GRAD = [
+    (0, -1e6, R.invalid_rheology), (2, 0.0, R.invalid_rheology),
+    (3, 0.0, R.invalid_profile), (4, np.nan, R.invalid_work_of_adhesion),
+    (5, -1e-6, R.invalid_depth), (6, -1e-4, R.invalid_velocity),
+    (5, 4000.0, R.implausible_input), (0, 1e40, R.implausible_input),
+]
+
+
+def _retract_p(p, ts, throw):
+    return jc.retract(jc.StandardModel(p[0], p[1], p[2]), jc.Parabola(p[3]), p[4], ts,
+                      depth=p[5], velocity=p[6], throw=throw)
+
+
+def _raises_item(fn, item, *args):
+    with pytest.raises(Exception, match=re.escape(_msg(item)[:40])):
+        jax.block_until_ready(fn(*args))
+
+
+@pytest.mark.parametrize("transform", [jax.grad, jax.jacfwd])
+def test_throw_raises_under_jit_of_a_derivative(transform):
+    """The checks of `retract`, `pull_off`, the elastic relations and the guarded profile
+    methods survive `jit(grad)` / `jit(jacfwd)` (they were removed as dead code: NaN or a
+    plausible gradient, e.g. 1896 for a depth of 4000 m)."""
+    ts = jnp.asarray(TS)
+    base = np.array([G0, G1, ETA1, RAD, DG, D0, V])
+    d_retract = jax.jit(transform(lambda p: _retract_p(p, ts, True).max_tensile_force))
+    assert np.all(np.isfinite(np.asarray(d_retract(jnp.asarray(base)))))
+    for k, value, item in BAD_GRAD:
+        p = base.copy()
+        p[k] = value
+        _raises_item(d_retract, item, jnp.asarray(p))
+
+    d_po = jax.jit(transform(lambda q: jc.pull_off(
+        jc.Parabola(q[0]), effective_modulus=q[1], work_of_adhesion=DG).force))
+    assert np.all(np.isfinite(np.asarray(d_po(jnp.array([RAD, 4 * G0])))))
+    _raises_item(d_po, R.invalid_modulus, jnp.array([RAD, -4 * G0]))
+    _raises_item(d_po, R.implausible_input, jnp.array([5e3, 4 * G0]))
+
+    d_jkr = jax.jit(transform(lambda a: jc.jkr_force(
+        jc.Parabola(RAD), a, effective_modulus=4 * G0, work_of_adhesion=DG)))
+    _raises_item(d_jkr, R.invalid_radius, jnp.asarray(-1e-6))
+
+    d_g = jax.jit(transform(lambda n: jc.PowerLaw(1e3, n).g(1e-6)))
+    assert np.isfinite(float(d_g(1.5)))
+    with pytest.raises(Exception, match="`n` must be finite and in"):
+        jax.block_until_ready(d_g(0.4))
+
+
+def test_simulate_throw_raises_under_jit_of_a_derivative():
+    """`simulate` shares the mechanism (`raise_if_error`); one transform (its derivative
+    compiles slowly), a scalar parameter."""
+    t_sim = np.linspace(0.0, 0.06, 24)
+    u_sim = jnp.asarray(np.interp(t_sim, [0, 0.02, 0.03, 0.06], [0, D0, D0, -D0]))
+
+    def sim(dg):
+        return jc.simulate(jc.StandardModel(G0, G1, ETA1), jc.Parabola(RAD), dg,
+                           jnp.asarray(t_sim), u_sim, grid=8).max_tensile_force
+
+    d_sim = jax.jit(jax.jacfwd(sim))
+    assert np.isfinite(float(d_sim(DG)))
+    _raises_item(d_sim, R.invalid_work_of_adhesion, -DG)
+    _raises_item(d_sim, R.implausible_input, 1e3)
+
+
+def test_vmapped_gradients_report_every_lane():
+    """jit(vmap(value_and_grad)) with `throw=False`: the status per lane (aux), the gradient
+    of the good lane that of the unbatched call, no error raised."""
+    ts = jnp.asarray(TS)
+    base = np.array([G0, G1, ETA1, RAD, DG, D0, V])
+    rows = [base]
+    for k, value, _ in BAD_GRAD:
+        p = base.copy()
+        p[k] = value
+        rows.append(p)
+
+    def f(p):
+        sol = _retract_p(p, ts, False)
+        return sol.max_tensile_force, sol.result
+
+    vg = jax.jit(jax.vmap(jax.value_and_grad(f, has_aux=True)))
+    (_, result), grads = vg(jnp.asarray(np.stack(rows)))
+    expect = [R.detached] + [item for _, _, item in BAD_GRAD]
+    assert [_code(result, i) for i in range(len(rows))] == [_msg(e) for e in expect]
+    ref = jax.grad(lambda p: _retract_p(p, ts, True).max_tensile_force)(jnp.asarray(base))
+    np.testing.assert_allclose(np.asarray(grads[0]), np.asarray(ref), rtol=1e-12)

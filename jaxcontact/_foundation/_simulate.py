@@ -18,8 +18,8 @@ from .._solution import (
     ErrorEstimate,
     FoundationDetails,
     fold_results,
-    is_error,
     nan_where,
+    raise_if_error,
 )
 from .._solvers import as_float, cast_floats, float_dtype, safe_div, smallest
 from .._validate import (
@@ -170,7 +170,7 @@ def simulate(
         sol = eqx.tree_at(lambda s: s.details.error_estimate, sol, estimate,
                           is_leaf=lambda x: x is None)
     if throw:
-        sol = sol.result.error_if(sol, is_error(sol.result))
+        sol = raise_if_error(sol, sol.result)
     return sol
 
 

@@ -103,7 +103,7 @@ from ._criteria import BEM_CHI
 from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
 from ._solution import RESULTS
-from ._solvers import as_float, floats_to_arrays, safe_div
+from ._solvers import as_float, float64_scope, floats_to_arrays, safe_div
 from ._validate import check_finite, check_positive, check_times, error_if, is_concrete
 
 __all__ = [
@@ -165,6 +165,7 @@ def _primitive(X, Y):
     return jnp.sign(X) * jnp.sign(Y) * val
 
 
+@float64_scope
 def love_displacement(
     x: Float[ArrayLike, "..."],
     y: Float[ArrayLike, "..."],
@@ -443,6 +444,7 @@ def _consistent(khat, base, attached, q0, s0, k00, q_crit, adhesive, load, tol, 
 _FAR = 1e3  # heights outside a punch: this many grid extents (never touched)
 
 
+@float64_scope
 def bem_heights(profile: AbstractProfile, grid: BEMGrid) -> Float[Array, "n n"]:
     r"""Height map [m] of an axisymmetric profile on the grid: $h_{ij} = f(r_{ij})$.
 
@@ -456,6 +458,7 @@ def bem_heights(profile: AbstractProfile, grid: BEMGrid) -> Float[Array, "n n"]:
     return jnp.where(jnp.isfinite(h), h, _FAR * as_float(grid.extent))
 
 
+@float64_scope
 def ellipsoid_heights(
     grid: BEMGrid, radius_x: Float[ArrayLike, ""], radius_y: Float[ArrayLike, ""]
 ) -> Float[Array, "n n"]:
@@ -467,6 +470,7 @@ def ellipsoid_heights(
     return x * x / (2 * as_float(radius_x)) + y * y / (2 * as_float(radius_y))
 
 
+@float64_scope
 def tilted_flat_heights(
     grid: BEMGrid, radius: Float[ArrayLike, ""], angle: Float[ArrayLike, ""]
 ) -> Float[Array, "n n"]:
@@ -483,6 +487,7 @@ def tilted_flat_heights(
     return h - jnp.min(h)
 
 
+@float64_scope
 def self_affine_heights(
     grid: BEMGrid,
     *,
@@ -545,6 +550,7 @@ def _heights(indenter, grid: BEMGrid) -> Array:
 # --------------------------------------------------------------------------------------
 
 
+@float64_scope
 def bem_contact(
     indenter,
     depth: Float[ArrayLike, ""] | None = None,
@@ -666,6 +672,7 @@ class BEMSolution(eqx.Module):
         return self.result == RESULTS.detached
 
 
+@float64_scope
 def bem_simulate(
     rheology: AbstractRheology,
     indenter,

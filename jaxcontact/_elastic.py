@@ -23,7 +23,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._profiles import AbstractProfile, front_displacement, hess_coefficient
 from ._solution import RESULTS, fold_results, is_error, raise_if_error
-from ._solvers import as_float, cast_floats, float_dtype
+from ._solvers import as_float, cast_floats, float64_scope, float_dtype
 from ._validate import (
     Constraint,
     check_domain_plausible,
@@ -137,6 +137,7 @@ def _check_radius(profile, a, name="a"):
 # --------------------------------------------------------------------------------------
 
 
+@float64_scope
 def profile_radius(
     profile: AbstractProfile, depth: Float[ArrayLike, "..."], *, throw: bool = True
 ) -> Array:
@@ -166,6 +167,7 @@ def profile_radius(
         return _finish(out, checks, depth_ok, RESULTS.invalid_depth, throw=throw)
 
 
+@float64_scope
 def jkr_displacement(
     profile: AbstractProfile,
     a: Float[ArrayLike, "..."],
@@ -191,6 +193,7 @@ def jkr_displacement(
                            work_of_adhesion, throw, force=False)
 
 
+@float64_scope
 def jkr_force(
     profile: AbstractProfile,
     a: Float[ArrayLike, "..."],
@@ -229,6 +232,7 @@ def _front_relation(name, profile, a, effective_modulus, work_of_adhesion, throw
         return _finish(out, checks, a_ok, RESULTS.invalid_radius, throw=throw)
 
 
+@float64_scope
 def jkr_contact_radius(
     profile: AbstractProfile,
     displacement: Float[ArrayLike, "..."],
@@ -288,6 +292,7 @@ class PullOff(eqx.Module):
     result: RESULTS = eqx.field(default_factory=lambda: RESULTS.successful)
 
 
+@float64_scope
 def pull_off(
     profile: AbstractProfile,
     *,
@@ -349,6 +354,7 @@ def pull_off(
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(64)
 
 
+@float64_scope
 def contact_pressure(
     profile: AbstractProfile,
     r: Float[ArrayLike, "..."],

@@ -50,7 +50,7 @@ from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float
 
 from ._root import bracketed_root
-from ._solvers import as_float
+from ._solvers import as_float, float64_scope
 from ._validate import Constraint, guarded
 
 __all__ = [
@@ -70,6 +70,7 @@ __all__ = [
 ]
 
 
+@float64_scope
 def power_law_factor(n: ArrayLike) -> Array:
     r"""The MDR stretch factor $\kappa(n) = \sqrt\pi\,\Gamma(n/2+1)/\Gamma(n/2+1/2)$.
 

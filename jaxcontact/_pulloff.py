@@ -66,7 +66,7 @@ from ._solution import (
     nan_where,
     raise_if_error,
 )
-from ._solvers import as_float, cast_floats, float_dtype, smallest
+from ._solvers import as_float, cast_floats, float64_scope, float_dtype, smallest
 from ._validate import (
     Constraint,
     check_domain_plausible,
@@ -98,6 +98,7 @@ def _segment_deff(u, depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio):
     return depth + delta_a + slope * u + glass_ratio * jnp.sum(w)
 
 
+@float64_scope
 def retract(
     rheology: AbstractRheology,
     profile: AbstractProfile,

@@ -36,6 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._solvers import float64_scope
+
 __all__ = [
     "PLAUSIBLE",
     "Condition",
@@ -289,9 +291,11 @@ def guarded(method):
     holds traced values (under `jit`/`vmap`) the result carries a run-time check of the
     domain (`equinox.error_if`, the message names every parameter and its range); concrete
     objects were checked when they were built, and the entry functions switch the guard off
-    (`unchecked`) because they report the same problem in `.result`."""
+    (`unchecked`) because they report the same problem in `.result`. The method runs in
+    `float64_scope` (float64 inputs stay float64 whatever the caller's `jax_enable_x64`)."""
 
     @functools.wraps(method)
+    @float64_scope
     def wrapper(self, *args, **kwargs):
         if _UNCHECKED.get() or is_concrete(self):
             return method(self, *args, **kwargs)

@@ -6,6 +6,7 @@ Compiled functions are shared (module fixtures) and the histories short, so that
 stays cheap; `benchmarks/fuzz_forward.py` runs the long version of these checks.
 """
 
+import os
 import re
 
 import diffrax
@@ -430,3 +431,50 @@ def test_vmapped_gradients_report_every_lane():
     assert [_code(result, i) for i in range(len(rows))] == [_msg(e) for e in expect]
     ref = jax.grad(lambda p: _retract_p(p, ts, True).max_tensile_force)(jnp.asarray(base))
     np.testing.assert_allclose(np.asarray(grads[0]), np.asarray(ref), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# importing leaves the caller's jax_enable_x64 alone; eager calls stay float64
+# --------------------------------------------------------------------------------------
+
+_X64_SCRIPT = r"""
+import warnings
+warnings.simplefilter("error")
+import jax, jax.numpy as jnp, numpy as np
+import jaxcontact as jc, fitting
+assert not jax.config.jax_enable_x64, "import switched x64 on"
+ts = np.linspace(0.0, 0.1, 32)
+rh, prof = jc.StandardModel(1e6, 2e5, 1e4), jc.Parabola(1e-4)
+sol = jc.retract(rh, prof, 0.05, ts, depth=4e-6, velocity=1e-4)
+po = jc.pull_off(prof, effective_modulus=4e6, work_of_adhesion=0.05)
+u = np.interp(ts, [0.0, 0.05, 0.1], [0.0, 4e-6, -4e-6])
+sim = jc.simulate(rh, prof, 0.05, ts, u, grid=8)
+# the caller's own arrays and a float32 program inside the caller's jit stay float32
+f32 = jax.jit(lambda t, d: jc.retract(rh, prof, 0.05, t, d).force)(
+    jnp.asarray(ts, jnp.float32), jnp.asarray(4e-6 - 1e-4 * ts, jnp.float32))
+# a fitting entry function: the truth of synthetic data has zero residuals
+curve = fitting.Curve(time=ts, displacement=np.asarray(sol.displacement),
+                      force=np.asarray(sol.force), segment=np.zeros(32, int),
+                      segment_names=("retract",))
+spec = fitting.make_spec()
+data = fitting.prepare_curves([curve], spec, radius=1e-4)
+r = fitting.residuals(np.array([1e6, 2e5, 1e4, 0.05]), data, spec)
+print(jax.config.jax_enable_x64, sol.force.dtype, float(po.force), sim.force.dtype,
+      jnp.ones(2).dtype, f32.dtype, data.ts.dtype, r.dtype, float(np.max(np.abs(r))))
+"""
+
+
+def test_import_leaves_x64_alone_and_eager_calls_stay_float64():
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    out = subprocess.run([sys.executable, "-c", _X64_SCRIPT], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    x64, f, po, fs, ones, f32, dts, dr, rmax = out.stdout.split()
+    assert x64 == "False" and ones == "float32" and f32 == "float32"
+    assert f == fs == dts == dr == "float64"
+    # float64 accuracy: the closed form of the parabola's pull-off under displacement control
+    assert float(po) == pytest.approx(-5 / 6 * np.pi * 0.05 * 1e-4, rel=1e-13)
+    assert float(rmax) <= np.sqrt(12.0) + 1e-6  # only the samples at the jump-off differ

@@ -21,7 +21,7 @@ from .._solution import (
     nan_where,
     raise_if_error,
 )
-from .._solvers import as_float, cast_floats, float_dtype, safe_div, smallest
+from .._solvers import as_float, cast_floats, float64_scope, float_dtype, safe_div, smallest
 from .._validate import (
     Constraint,
     check_domain_plausible,
@@ -41,6 +41,7 @@ from ._options import FoundationGrid
 from ._state import FoundationState, StepStart, _Carry, _MinimumPair
 
 
+@float64_scope
 def simulate(
     rheology: AbstractRheology,
     profile: AbstractProfile,

@@ -8,6 +8,7 @@ import functools
 import numpy as np
 
 from .._solution import RESULTS
+from .._solvers import float64_scope
 from .._validate import check_plausible, plausibility_enabled
 from .._version import __version__
 from ._models import AbstractSweepModel, RelaxedStart
@@ -65,6 +66,7 @@ def _model_repr(model) -> str:
     return repr(model)
 
 
+@float64_scope
 def sweep(
     grid=None,
     *,

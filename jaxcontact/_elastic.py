@@ -26,8 +26,11 @@ from ._solution import RESULTS, fold_results, is_error, raise_if_error
 from ._solvers import as_float, cast_floats, float64_scope, float_dtype
 from ._validate import (
     Constraint,
+    check_contact_radius,
     check_domain_plausible,
     check_plausible,
+    contact_radius_plausible,
+    contact_radius_valid,
     domain_ok,
     domain_plausible,
     is_concrete,
@@ -119,17 +122,27 @@ def _check_finite_result(name, out):
 
 
 def _radius_ok(profile, a):
-    return jnp.isfinite(a) & (a >= 0) & (a <= profile.max_radius)
+    return jnp.isfinite(a) & (a >= 0) & (a <= profile.valid_radius)
 
 
 def _check_radius(profile, a, name="a"):
     if is_concrete(a) and is_concrete(profile):
         arr = np.ravel(np.asarray(a, dtype=float))
-        amax = float(profile.max_radius)
+        amax = float(profile.valid_radius)
         good = np.isfinite(arr) & (arr >= 0) & (arr <= amax)
         if not np.all(good):
             raise ValueError(f"`{name}` (contact radius) must be finite and in [0, {amax:g}] "
-                             f"[m] (the profile's `max_radius`); got {arr[np.argmin(good)]}.")
+                             f"[m] (the profile's `valid_radius`: a Parabola's `R`, a bounded "
+                             f"shape's edge); got {arr[np.argmin(good)]}.")
+
+
+def _computed_radius_checks(profile, a):
+    """`(ok, RESULTS item)` of a contact radius computed from the inputs."""
+    checks = []
+    if plausibility_enabled():
+        checks.append((contact_radius_plausible(a), RESULTS.implausible_input))
+    checks.append((contact_radius_valid(profile, a), RESULTS.beyond_profile))
+    return checks
 
 
 # --------------------------------------------------------------------------------------
@@ -159,11 +172,13 @@ def profile_radius(
         out = profile.contact_radius(depth)
         if is_concrete((profile, depth)):
             _check_finite_result("profile_radius", out)
+            check_contact_radius(profile, out, "`depth`")
             return out
         checks = _traced_checks(profile, ())
         if plausibility_enabled():
             checks.append((plausible(depth, "length"), RESULTS.implausible_input))
         depth_ok = jnp.isfinite(depth) & (depth >= 0)
+        checks += _computed_radius_checks(profile, jnp.where(depth_ok, out, 0.0))
         return _finish(out, checks, depth_ok, RESULTS.invalid_depth, throw=throw)
 
 
@@ -271,9 +286,11 @@ def jkr_contact_radius(
         radius = jnp.where(attached, profile.front_radius(d_safe, c, a_fold), 0.0)
         if is_concrete((profile, d, E, w)):
             _check_finite_result("jkr_contact_radius", radius)
+            check_contact_radius(profile, radius, "`displacement`")
             return radius
         checks = _traced_checks(profile, (_modulus(E), _adhesion(w, False)),
                                 (("displacement", d),))
+        checks += _computed_radius_checks(profile, jnp.where(jnp.isfinite(d), radius, 0.0))
         return _finish(radius, checks, jnp.isfinite(d), RESULTS.invalid_displacement,
                        throw=throw)
 
@@ -337,8 +354,11 @@ def pull_off(
         F = 2 * E * (a * d - profile.integral_g(a))
         if is_concrete((profile, E, w)):
             _check_finite_result("pull_off", jnp.stack([a, d, F]))
+            check_contact_radius(profile, a, "The pull-off (`effective_modulus`, "
+                                 "`work_of_adhesion`)")
             return PullOff(radius=a, displacement=d, force=F)
         checks = _traced_checks(profile, (_modulus(E), _adhesion(w, False)))
+        checks += _computed_radius_checks(profile, a)
         finite = jnp.isfinite(a) & jnp.isfinite(d) & jnp.isfinite(F)
         checks.append((finite, RESULTS.non_finite_result))
         result = fold_results(RESULTS.successful, checks)

@@ -31,8 +31,10 @@ class RESULTS(eqx.Enumeration):
     errors, raised when `throw=True` and returned in `.result` when `throw=False` (the other
     fields of an erroneous lane are meaningless: NaN where an input is invalid). The input
     checks come first, in the order of the arguments; `implausible_input` (a value far
-    outside the range of its unit) can be switched off with
-    `jaxcontact.plausibility_checks(False)`.
+    outside the range of its unit, also a contact radius computed from the inputs: a
+    profile so flat that the contact would be kilometres wide) can be switched off with
+    `jaxcontact.plausibility_checks(False)`; `beyond_profile` (a contact radius beyond the
+    profile's `valid_radius`) cannot.
     """
 
     detached = "The contact detached (jump-off found within the simulated times)."
@@ -71,7 +73,10 @@ class RESULTS(eqx.Enumeration):
     )
     invalid_loading = "`CompliantLoading.stiffness` must be finite and > 0 [N/m]."
     invalid_modulus = "`effective_modulus` must be finite and > 0 [Pa]."
-    invalid_radius = "The contact radius `a` must be finite and >= 0 [m]."
+    invalid_radius = (
+        "The contact radius `a` must be finite, >= 0 and at most the profile's `valid_radius` "
+        "[m] (a Parabola's `R`, a bounded shape's edge)."
+    )
     implausible_input = (
         "An input lies outside the plausible range of its unit (lengths 1e-12-1 m, moduli "
         "1e-3-1e13 Pa, viscosities 1e-6-1e25 Pa s, times 1e-12-1e12 s, work of adhesion "
@@ -83,6 +88,11 @@ class RESULTS(eqx.Enumeration):
         "The computation produced NaN or inf although every input is finite and in its "
         "domain: overflow or underflow for inputs far outside the regime the model is built "
         "for (check the units)."
+    )
+    beyond_profile = (
+        "The contact radius exceeds what the profile describes (`valid_radius`): the radius "
+        "`R` of a Parabola, which stands for a sphere (no sphere contact reaches a > R), or "
+        "the edge of a bounded shape. Indent less, or use a larger indenter."
     )
 
 

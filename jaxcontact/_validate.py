@@ -42,12 +42,15 @@ __all__ = [
     "PLAUSIBLE",
     "Condition",
     "Constraint",
+    "check_contact_radius",
     "check_finite",
     "check_plausible",
     "check_domain_plausible",
     "check_positive",
     "check_times",
     "branched_error_if",
+    "contact_radius_plausible",
+    "contact_radius_valid",
     "domain_ok",
     "error_if",
     "domain_plausible",
@@ -410,3 +413,54 @@ def plausible(value, kind: str, *, magnitude: bool = False):
     if magnitude:
         return jnp.all(skip | (v <= hi))
     return jnp.all(skip | ((v >= lo) & (v <= hi)))
+
+
+# --------------------------------------------------------------------------------------
+# validity of a contact radius computed from the inputs
+# --------------------------------------------------------------------------------------
+
+
+def contact_radius_valid(profile, a):
+    """Traced: no entry of the contact radius `a` [m] beyond `profile.valid_radius` (a
+    Parabola's `R`, a bounded shape's edge); NaN entries pass (other checks report them)."""
+    return jnp.all(jnp.logical_not(jnp.asarray(a) > profile.valid_radius))
+
+
+def contact_radius_plausible(a):
+    """Traced: the contact radius `a` [m] (its largest entry) is a plausible length
+    (`PLAUSIBLE["length"]`): a profile so flat that the contact would be kilometres wide (a
+    Cone with half-angle near pi/2, a PowerLaw with a tiny prefactor) is a unit mistake as
+    surely as a Parabola with `R` = 1e29 m."""
+    return plausible(a, "length", magnitude=True)
+
+
+def check_contact_radius(profile, a, source: str) -> None:
+    """Eager: `ValueError` if a concrete contact radius `a` [m], computed from `source` (the
+    inputs that set it, e.g. "`depth` = 0.004 m"), exceeds `profile.valid_radius` or (with
+    the plausibility checks on) the plausible range of a length."""
+    if not (is_concrete(a) and is_concrete(profile)):
+        return
+    arr = np.asarray(a, dtype=float).ravel()
+    arr = arr[np.isfinite(arr)]
+    if arr.size == 0:
+        return
+    got = float(arr.max())
+    limit = float(np.asarray(profile.valid_radius))
+    name = type(profile).__name__
+    if got > limit:
+        what = ("radius `R`" if math.isfinite(limit) and hasattr(profile, "R")
+                else "`valid_radius`")
+        raise ValueError(
+            f"{source} gives a contact radius of {got:g} m, beyond the {name}'s {what} "
+            f"{limit:g} m, the largest contact radius it describes (a paraboloid stands for a "
+            "sphere: no sphere contact reaches a > R). Indent less, or use a larger indenter."
+        )
+    lo, hi, unit = PLAUSIBLE["length"]
+    if plausibility_enabled() and got > hi:
+        raise ValueError(
+            f"{source} gives a contact radius of {got:g} m with the {name}, outside the "
+            f"plausible range [{lo:g}, {hi:g}] {unit} of a length: is a parameter of the "
+            "profile in other units (a Cone's `half_angle` near pi/2, a PowerLaw's `c` far "
+            "too small)? If the values are right, switch the check off with "
+            "`jaxcontact.plausibility_checks(False)`."
+        )

@@ -60,6 +60,8 @@ BAD_RETRACT = [
     (6, np.nan, R.invalid_velocity), (6, 0.0, R.invalid_velocity), (6, -1e-4, R.invalid_velocity),
     (5, 4000.0, R.implausible_input), (3, 1e-300, R.implausible_input),
     (0, 1e30, R.implausible_input), (6, 1e6, R.implausible_input),
+    # a relaxed contact radius sqrt(R d0) = 6.3 R: no sphere contact reaches beyond R
+    (5, 4e-3, R.beyond_profile),
 ]
 BAD_TS = [
     (TS[::-1], R.invalid_times), (np.where(np.arange(N_T) == 5, np.nan, TS), R.invalid_times),
@@ -132,7 +134,12 @@ def test_plausibility_switch():
     with pytest.raises(ValueError, match="plausibility_checks"):
         jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=D0, velocity=V)
     with jc.plausibility_checks(False):
-        sol = jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=D0, velocity=V, throw=False)
+        # the geometry is no plausibility check: a contact radius sqrt(R d0) = 2e-153 m on a
+        # sphere of radius 1e-300 m is refused with the checks off too
+        with pytest.raises(ValueError, match="beyond the Parabola's radius"):
+            jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=D0, velocity=V)
+        sol = jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=1e-301, velocity=V,
+                         throw=False)
         # finite inputs that overflow are not called "non-finite input"
         assert sol.result in (R.non_finite_result, R.detached, R.in_contact)
         assert not bool(sol.result == R.invalid_input)
@@ -163,6 +170,7 @@ def test_simulate_reports_every_bad_lane():
         (G0, DG, ts[::-1], d, R.invalid_times),
         (G0, DG, ts, np.where(np.arange(40) == 3, np.nan, d), R.invalid_displacement),
         (G0, DG, ts, d * 1e9, R.implausible_input),
+        (G0, DG, ts, d * 40, R.beyond_profile),  # a radius sqrt(R 40 d0) = 4 R
     ]
     cols = [jnp.asarray(np.stack([r[k] for r in rows])) for k in range(4)]
     sol = jax.jit(jax.vmap(lane))(*cols)
@@ -478,3 +486,74 @@ def test_import_leaves_x64_alone_and_eager_calls_stay_float64():
     # float64 accuracy: the closed form of the parabola's pull-off under displacement control
     assert float(po) == pytest.approx(-5 / 6 * np.pi * 0.05 * 1e-4, rel=1e-13)
     assert float(rmax) <= np.sqrt(12.0) + 1e-6  # only the samples at the jump-off differ
+
+
+# --------------------------------------------------------------------------------------
+# odd geometry: a contact radius beyond what the profile describes, or kilometres wide
+# --------------------------------------------------------------------------------------
+
+
+def test_contact_beyond_the_sphere_or_implausibly_wide_is_refused():
+    """Every entry point refuses (eagerly, naming the parameter) a contact radius beyond a
+    Parabola's R, and (plausibility of units) one beyond 1 m: a PowerLaw with a tiny
+    prefactor is refused as the equivalent Parabola (f = r^2/(2R): c = 1/(2R)) is, a cone
+    with a half-angle near pi/2. These gave -2.2e13 N, -4.1e7 N, a positive "max tensile
+    force" of 2.24 N and 5.3e10 N before."""
+    ts = jnp.asarray(TS)
+    rh = jc.StandardModel(G0, G1, ETA1)
+    kw = dict(effective_modulus=4 * G0, work_of_adhesion=DG)
+    with pytest.raises(ValueError, match=r"`depth` = 0.004 m .* beyond the Parabola's radius"):
+        jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=4e-3, velocity=V)
+    # just inside: a0 = 0.9 R
+    assert bool(jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=0.81 * RAD, velocity=V).ok)
+    with pytest.raises(ValueError, match="contact_radius"):
+        jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=D0, velocity=V,
+                   contact_radius=1.5 * RAD)
+    with pytest.raises(ValueError, match=r"`a` \(contact radius\) .*valid_radius"):
+        jc.jkr_force(jc.Parabola(RAD), 1.0, **kw)
+    with pytest.raises(ValueError, match="`depth` .* beyond"):
+        jc.profile_radius(jc.Parabola(RAD), 4e-3)
+    with pytest.raises(ValueError, match="`displacement` up to .* beyond"):
+        jc.simulate(rh, jc.Parabola(RAD), DG, ts, 4e-3 * np.sin(np.pi * TS / TS[-1]))
+    steep = jc.Cone(np.pi / 2 - 1e-12)
+    for prof in (jc.PowerLaw(1e-30, 2.0), jc.Parabola(5e29), steep):
+        with pytest.raises(ValueError, match="plausible range"):
+            jc.retract(rh, prof, DG, ts, depth=1e-6, velocity=V)
+    with pytest.raises(ValueError, match="plausible range"):
+        jc.pull_off(steep, **kw)
+    with pytest.raises(ValueError, match="plausible range"):
+        jc.jkr_contact_radius(steep, 1e-6, **kw)
+    # the size check is one of the plausibility checks (switchable), the sphere's R is not
+    with jc.plausibility_checks(False):
+        assert bool(jc.retract(rh, jc.PowerLaw(1e-30, 2.0), DG, ts, depth=1e-6,
+                               velocity=V).ok)
+        with pytest.raises(ValueError, match="beyond the Parabola's radius"):
+            jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=4e-3, velocity=V)
+
+
+def test_odd_geometry_is_flagged_per_lane():
+    def po(half_angle, E):
+        return jc.pull_off(jc.Cone(half_angle), effective_modulus=E, work_of_adhesion=DG,
+                           throw=False)
+
+    sol = jax.jit(jax.vmap(po))(jnp.array([1.2, np.pi / 2 - 1e-12]), jnp.array([4e6, 4e6]))
+    assert [_code(sol.result, i) for i in range(2)] == [_msg(R.successful),
+                                                        _msg(R.implausible_input)]
+    assert np.isfinite(float(sol.force[0])) and np.isnan(float(sol.force[1]))
+    a = jnp.array([0.5 * RAD, 2 * RAD])
+    out = jax.jit(lambda a: jc.jkr_force(jc.Parabola(RAD), a, effective_modulus=4e6,
+                                         work_of_adhesion=DG, throw=False))(a)
+    assert np.isfinite(float(out[0])) and np.isnan(float(out[1]))
+
+
+def test_sweep_flags_points_beyond_the_sphere_and_refuses_a_flat_cone():
+    ds = jc.sweep({"G_inf": 1e5, "work_of_adhesion": DG, "R": RAD,
+                   "depth": np.array([1e-6, 4e-3]), "velocity": 1e-4},
+                  model=jc.RelaxedStart(samples=20), progress=False, precision="float64")
+    assert int(ds.status[0]) == int(R.detached._value)
+    assert int(ds.status[1]) == int(R.beyond_profile._value)
+    assert np.isnan(float(ds.max_tensile_force_N[1]))
+    with pytest.raises(ValueError, match="contact radius at `depth`"):
+        jc.sweep({"G_inf": 1e5, "work_of_adhesion": DG, "half_angle": np.pi / 2 - 1e-12,
+                  "depth": 1e-6, "velocity": 1e-4}, model=jc.RelaxedStart(samples=20),
+                 progress=False, precision="float64")

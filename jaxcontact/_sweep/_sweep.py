@@ -151,6 +151,10 @@ def sweep(
             kind = _PLAUSIBLE_KIND.get(parameter_info(n).dimension)
             if kind is not None:
                 check_plausible(n, a, kind)
+        # the contact radius at each point's depth, a length too: a profile so flat that
+        # the contact would be kilometres wide (a cone's half-angle near pi/2)
+        touch = spec.profile.build(v).contact_radius(v["depth"])
+        check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
     length = v["depth"]
     modulus = spec.material.relaxed_modulus(v)
     tref = v["depth"] / v["velocity"]

@@ -64,3 +64,22 @@ from ._units import parse_units as parse_units
 from ._units import unit_factor as unit_factor
 from ._xla import XLA_CPU_FLAGS as XLA_CPU_FLAGS
 from ._xla import tune_xla_cpu as tune_xla_cpu
+
+
+def _run_in_float64() -> None:
+    """The entry functions run in float64 when called eagerly, whatever the caller's
+    ``jax_enable_x64`` (importing ``fitting`` or ``jaxcontact`` leaves it alone; see
+    ``jaxcontact._solvers.float64_scope``)."""
+    from jaxcontact._solvers import float64_scope
+
+    names = ("fit", "fit_each", "solve", "solve_batch", "profile_likelihood", "predict",
+             "residuals", "effective_force", "preprocess", "prepare_curves", "select_samples",
+             "stack_batches", "initial_guess", "data_scales", "default_bounds",
+             "make_parameterisation", "make_spec", "resample", "select_segments",
+             "infer_segments", "load_curve", "load_csv", "load_afm", "write_report",
+             "write_each_report", "result_table")
+    for name in names:
+        globals()[name] = float64_scope(globals()[name])
+
+
+_run_in_float64()

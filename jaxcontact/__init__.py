@@ -9,18 +9,24 @@ force positive when compressive, negative when adhesive; `work_of_adhesion` is t
 separation per unit area Δγ [J/m²]. Moduli are shear moduli G [Pa] of an incompressible
 half-space, so the MDR foundation stiffness is 4G per unit length (E* = 4G).
 
-float64 is switched on at import (``jax_enable_x64``): results are float64 unless every
-floating input is float32, in which case the computation runs in float32 (Python floats
-take the precision of the arrays they meet; see the README for the measured float32
-error). Inputs are checked eagerly (`ValueError`) and under `jit`/`vmap` (`.result` per
-lane, `throw=`), including the plausibility of their units (`plausibility_checks`).
+Precision: importing the library leaves JAX's configuration alone (``jax_enable_x64``
+stays as the caller set it). Called directly, every public function, constructor and
+profile or rheology method runs with 64-bit types switched on for its own duration
+(``jax.enable_x64``, local to the calling thread; `_solvers.float64_scope`), so results are
+float64 unless every floating input is float32, in which case the computation runs in
+float32 (Python floats and NumPy's float64 arrays are float64 inputs; see the README for
+the measured float32 error). Inside the caller's own `jit`, `grad` or `vmap` the caller's
+setting holds (JAX lowers and differentiates that program after the call returns): with x64
+off it runs in float32; switch x64 on (``jax.config.update("jax_enable_x64", True)``, or
+``with jax.enable_x64(True):`` around the transformed call) for float64 there. The returned
+arrays keep their dtype; with x64 off JAX truncates float64 arrays to float32 (with its
+warning) in the caller's own later operations.
+
+Inputs are checked eagerly (`ValueError`) and under `jit`/`vmap` (`.result` per lane,
+`throw=`), including the plausibility of their units (`plausibility_checks`).
 """
 
 # ruff: noqa: I001
-import jax as _jax
-
-_jax.config.update("jax_enable_x64", True)
-
 from ._version import __version__ as __version__  # noqa: E402
 
 # --- profiles --------------------------------------------------------------------------

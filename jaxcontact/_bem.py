@@ -103,12 +103,13 @@ from ._criteria import BEM_CHI
 from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
 from ._solution import RESULTS
-from ._solvers import as_float, floats_to_arrays, safe_div
+from ._solvers import as_float, float64_scope, floats_to_arrays, safe_div
 from ._validate import (
     check_finite,
     check_plausible,
     check_positive,
     check_times,
+    error_if,
     is_concrete,
 )
 
@@ -172,6 +173,7 @@ def _primitive(X, Y):
     return jnp.sign(X) * jnp.sign(Y) * val
 
 
+@float64_scope
 def love_displacement(
     x: Float[ArrayLike, "..."],
     y: Float[ArrayLike, "..."],
@@ -450,6 +452,7 @@ def _consistent(khat, base, attached, q0, s0, k00, q_crit, adhesive, load, tol, 
 _FAR = 1e3  # heights outside a punch: this many grid extents (never touched)
 
 
+@float64_scope
 def bem_heights(profile: AbstractProfile, grid: BEMGrid) -> Float[Array, "n n"]:
     r"""Height map [m] of an axisymmetric profile on the grid: $h_{ij} = f(r_{ij})$.
 
@@ -464,6 +467,7 @@ def bem_heights(profile: AbstractProfile, grid: BEMGrid) -> Float[Array, "n n"]:
     return jnp.where(jnp.isfinite(h), h, _FAR * as_float(grid.extent))
 
 
+@float64_scope
 def pyramid_heights(
     grid: BEMGrid, half_angle: float, sides: int = 4, angle: str = "face"
 ) -> Float[Array, "n n"]:
@@ -489,6 +493,7 @@ def pyramid_heights(
     return jnp.max(proj, axis=0) / tan_face
 
 
+@float64_scope
 def ellipsoid_heights(
     grid: BEMGrid, radius_x: Float[ArrayLike, ""], radius_y: Float[ArrayLike, ""]
 ) -> Float[Array, "n n"]:
@@ -500,6 +505,7 @@ def ellipsoid_heights(
     return x * x / (2 * as_float(radius_x)) + y * y / (2 * as_float(radius_y))
 
 
+@float64_scope
 def tilted_flat_heights(
     grid: BEMGrid, radius: Float[ArrayLike, ""], angle: Float[ArrayLike, ""]
 ) -> Float[Array, "n n"]:
@@ -516,6 +522,7 @@ def tilted_flat_heights(
     return h - jnp.min(h)
 
 
+@float64_scope
 def self_affine_heights(
     grid: BEMGrid,
     *,
@@ -578,6 +585,7 @@ def _heights(indenter, grid: BEMGrid) -> Array:
 # --------------------------------------------------------------------------------------
 
 
+@float64_scope
 def bem_contact(
     indenter,
     depth: Float[ArrayLike, ""] | None = None,
@@ -621,7 +629,7 @@ def bem_contact(
                                           None if force is None else as_float(force), grid,
                                           as_float(effective_modulus))), tol, max_iter)
     if throw:
-        out = eqx.error_if(out, ~out[3], "BEM: the constrained CG did not converge (raise "
+        out = error_if(out, ~out[3], "BEM: the constrained CG did not converge (raise "
                            "`max_iter` or `tol`).")
     return out[:3]
 
@@ -699,6 +707,7 @@ class BEMSolution(eqx.Module):
         return self.result == RESULTS.detached
 
 
+@float64_scope
 def bem_simulate(
     rheology: AbstractRheology,
     indenter,
@@ -822,13 +831,13 @@ def bem_simulate(
         0 if force is None and stiffness is None else max(int(max_newton), 1), adhesive,
         int(refine_steps))
     if throw:
-        sol = eqx.error_if(
+        sol = error_if(
             sol,
             sol.result == RESULTS.solver_failed,
             "BEM: a constrained-CG solve or the cell rule did not converge (raise `max_iter`, "
             "`max_rounds`, `max_newton` or `tol`).",
         )
-        sol = eqx.error_if(
+        sol = error_if(
             sol,
             sol.stats["touches_edge"],
             "BEM: the contact reached the edge of the grid; enlarge `grid.extent` (or, if "

@@ -29,6 +29,7 @@ import math
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
+from ._solvers import float64_scope
 from ._validate import check_finite, check_positive
 
 __all__ = [
@@ -54,6 +55,7 @@ def _check_common(radius, work_of_adhesion):
     check_positive("work_of_adhesion", work_of_adhesion, "J/m^2")
 
 
+@float64_scope
 def critical_elongation(
     radius: ArrayLike, work_of_adhesion: ArrayLike, glass_modulus: ArrayLike
 ) -> Array:
@@ -79,6 +81,7 @@ def critical_elongation(
     return jnp.sqrt(jnp.pi * a * w / (2 * g0))
 
 
+@float64_scope
 def critical_line_load(
     radius: ArrayLike, work_of_adhesion: ArrayLike, glass_modulus: ArrayLike
 ) -> Array:
@@ -104,6 +107,7 @@ def critical_line_load(
     return -jnp.sqrt(8 * jnp.pi * a * w * g0)
 
 
+@float64_scope
 def hess_elongation(
     radius: ArrayLike, work_of_adhesion: ArrayLike, effective_modulus: ArrayLike
 ) -> Array:
@@ -126,6 +130,7 @@ def hess_elongation(
     return jnp.sqrt(2 * jnp.pi * a * w / e)
 
 
+@float64_scope
 def bem_release_energy(
     stress: ArrayLike, cell_size: ArrayLike, effective_modulus: ArrayLike
 ) -> Array:
@@ -147,6 +152,7 @@ def bem_release_energy(
     return BEM_CHI * s**2 * d**3 / e
 
 
+@float64_scope
 def bem_critical_stress(
     cell_size: ArrayLike, work_of_adhesion: ArrayLike, effective_modulus: ArrayLike
 ) -> Array:

@@ -22,12 +22,15 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._profiles import AbstractProfile, front_displacement, hess_coefficient
-from ._solution import RESULTS, fold_results, is_error
-from ._solvers import as_float, cast_floats, float_dtype
+from ._solution import RESULTS, fold_results, is_error, raise_if_error
+from ._solvers import as_float, cast_floats, float64_scope, float_dtype
 from ._validate import (
     Constraint,
+    check_contact_radius,
     check_domain_plausible,
     check_plausible,
+    contact_radius_plausible,
+    contact_radius_valid,
     domain_ok,
     domain_plausible,
     is_concrete,
@@ -95,19 +98,26 @@ def _traced_checks(profile, constraints, lengths=()):
     return checks
 
 
-def _finish(out, checks, entry_ok, entry_item, *, throw):
+def _finish(out, checks, entry_ok, entry_item, *, throw, radius=None, profile=None):
     """The status of an elementwise relation: `checks` of the scalar inputs, `entry_ok`
-    (broadcastable to `out`) the check of the per-entry input (`entry_item` when it fails).
-    `throw=True` raises on any failure; otherwise the failing entries (all of them for a
-    failing scalar input) are NaN."""
+    (broadcastable to `out`) the check of the per-entry input (`entry_item` when it fails);
+    `radius` (with its `profile`), the contact radius computed per entry, checked per entry
+    against the profile's `valid_radius` (`RESULTS.beyond_profile`). `throw=True` raises on
+    any failure; otherwise the failing entries (all of them for a failing scalar input) are
+    NaN."""
     finite = jnp.isfinite(out)
     scalar = fold_results(RESULTS.successful, checks)
+    inside = True
+    if radius is not None:
+        inside = jnp.logical_not(jnp.asarray(radius) > profile.valid_radius)
+        entry_ok = entry_ok & inside
     result = fold_results(scalar, [
-        (jnp.all(entry_ok), entry_item),
+        (jnp.all(inside), RESULTS.beyond_profile),
+        (jnp.all(entry_ok | jnp.logical_not(inside)), entry_item),
         (jnp.all(finite | jnp.logical_not(entry_ok)), RESULTS.non_finite_result),
     ])
     if throw:
-        return result.error_if(out, is_error(result))
+        return raise_if_error(out, result)
     return jnp.where(jnp.logical_not(is_error(scalar)) & entry_ok & finite, out, jnp.nan)
 
 
@@ -119,17 +129,30 @@ def _check_finite_result(name, out):
 
 
 def _radius_ok(profile, a):
-    return jnp.isfinite(a) & (a >= 0) & (a <= profile.max_radius)
+    return jnp.isfinite(a) & (a >= 0) & (a <= profile.valid_radius)
 
 
 def _check_radius(profile, a, name="a"):
     if is_concrete(a) and is_concrete(profile):
         arr = np.ravel(np.asarray(a, dtype=float))
-        amax = float(profile.max_radius)
+        amax = float(profile.valid_radius)
         good = np.isfinite(arr) & (arr >= 0) & (arr <= amax)
         if not np.all(good):
             raise ValueError(f"`{name}` (contact radius) must be finite and in [0, {amax:g}] "
-                             f"[m] (the profile's `max_radius`); got {arr[np.argmin(good)]}.")
+                             f"[m] (the profile's `valid_radius`: a Parabola's `R`, a bounded "
+                             f"shape's edge); got {arr[np.argmin(good)]}.")
+
+
+def _computed_radius_checks(profile, a, *, per_entry: bool = False):
+    """`(ok, RESULTS item)` of a contact radius computed from the inputs: its plausibility
+    (a unit mistake: the whole call) and, unless `per_entry` (then `_finish` checks each
+    entry), the profile's `valid_radius`."""
+    checks = []
+    if plausibility_enabled():
+        checks.append((contact_radius_plausible(a), RESULTS.implausible_input))
+    if not per_entry:
+        checks.append((contact_radius_valid(profile, a), RESULTS.beyond_profile))
+    return checks
 
 
 # --------------------------------------------------------------------------------------
@@ -137,6 +160,7 @@ def _check_radius(profile, a, name="a"):
 # --------------------------------------------------------------------------------------
 
 
+@float64_scope
 def profile_radius(
     profile: AbstractProfile, depth: Float[ArrayLike, "..."], *, throw: bool = True
 ) -> Array:
@@ -158,14 +182,20 @@ def profile_radius(
         out = profile.contact_radius(depth)
         if is_concrete((profile, depth)):
             _check_finite_result("profile_radius", out)
+            check_contact_radius(profile, out, "`depth`")
             return out
         checks = _traced_checks(profile, ())
         if plausibility_enabled():
             checks.append((plausible(depth, "length"), RESULTS.implausible_input))
         depth_ok = jnp.isfinite(depth) & (depth >= 0)
-        return _finish(out, checks, depth_ok, RESULTS.invalid_depth, throw=throw)
+        a = jnp.where(depth_ok, out, 0.0)
+        checks += _computed_radius_checks(profile, jnp.where(jnp.isfinite(a), a, 0.0),
+                                          per_entry=True)
+        return _finish(out, checks, depth_ok, RESULTS.invalid_depth, throw=throw, radius=a,
+                       profile=profile)
 
 
+@float64_scope
 def jkr_displacement(
     profile: AbstractProfile,
     a: Float[ArrayLike, "..."],
@@ -191,6 +221,7 @@ def jkr_displacement(
                            work_of_adhesion, throw, force=False)
 
 
+@float64_scope
 def jkr_force(
     profile: AbstractProfile,
     a: Float[ArrayLike, "..."],
@@ -229,6 +260,7 @@ def _front_relation(name, profile, a, effective_modulus, work_of_adhesion, throw
         return _finish(out, checks, a_ok, RESULTS.invalid_radius, throw=throw)
 
 
+@float64_scope
 def jkr_contact_radius(
     profile: AbstractProfile,
     displacement: Float[ArrayLike, "..."],
@@ -267,11 +299,15 @@ def jkr_contact_radius(
         radius = jnp.where(attached, profile.front_radius(d_safe, c, a_fold), 0.0)
         if is_concrete((profile, d, E, w)):
             _check_finite_result("jkr_contact_radius", radius)
+            check_contact_radius(profile, radius, "`displacement`")
             return radius
         checks = _traced_checks(profile, (_modulus(E), _adhesion(w, False)),
                                 (("displacement", d),))
+        a = jnp.where(jnp.isfinite(d), radius, 0.0)
+        checks += _computed_radius_checks(profile, jnp.where(jnp.isfinite(a), a, 0.0),
+                                          per_entry=True)
         return _finish(radius, checks, jnp.isfinite(d), RESULTS.invalid_displacement,
-                       throw=throw)
+                       throw=throw, radius=a, profile=profile)
 
 
 class PullOff(eqx.Module):
@@ -288,6 +324,7 @@ class PullOff(eqx.Module):
     result: RESULTS = eqx.field(default_factory=lambda: RESULTS.successful)
 
 
+@float64_scope
 def pull_off(
     profile: AbstractProfile,
     *,
@@ -332,14 +369,17 @@ def pull_off(
         F = 2 * E * (a * d - profile.integral_g(a))
         if is_concrete((profile, E, w)):
             _check_finite_result("pull_off", jnp.stack([a, d, F]))
+            check_contact_radius(profile, a, "The pull-off (`effective_modulus`, "
+                                 "`work_of_adhesion`)")
             return PullOff(radius=a, displacement=d, force=F)
         checks = _traced_checks(profile, (_modulus(E), _adhesion(w, False)))
+        checks += _computed_radius_checks(profile, a)
         finite = jnp.isfinite(a) & jnp.isfinite(d) & jnp.isfinite(F)
         checks.append((finite, RESULTS.non_finite_result))
         result = fold_results(RESULTS.successful, checks)
         if throw:
             out = PullOff(radius=a, displacement=d, force=F, result=result)
-            return result.error_if(out, is_error(result))
+            return raise_if_error(out, result)
         bad = is_error(result)
         nan = jnp.asarray(jnp.nan, dtype)
         return PullOff(radius=jnp.where(bad, nan, a), displacement=jnp.where(bad, nan, d),
@@ -349,6 +389,7 @@ def pull_off(
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(64)
 
 
+@float64_scope
 def contact_pressure(
     profile: AbstractProfile,
     r: Float[ArrayLike, "..."],

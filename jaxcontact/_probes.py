@@ -35,8 +35,8 @@ from ._profiles import (
     numerical_stationary_radius,
 )
 from ._root import bracketed_root
-from ._solvers import as_float
-from ._validate import Constraint, guarded, is_concrete
+from ._solvers import as_float, float64_scope
+from ._validate import Constraint, float_field, guarded, is_concrete
 
 __all__ = [
     "Sphere",
@@ -120,7 +120,7 @@ class Sphere(AbstractCurvedProfile):
     the front; all differentiable by implicit differentiation.
     """
 
-    R: Float[Array, ""] = eqx.field(converter=as_float)
+    R: Float[Array, ""] = eqx.field(converter=float_field("R", "m"))
 
     def domain(self):
         return (Constraint("R", self.R, "m", kind="length"),)
@@ -217,6 +217,7 @@ class Sphere(AbstractCurvedProfile):
 PYRAMID_FACTORS = {4: 0.7453, 3: 0.8887}
 
 
+@float64_scope
 def pyramid_cone_angle(half_angle, sides: int = 4, angle: str = "face") -> float:
     r"""The half-opening angle [rad] of the cone equivalent to a regular pyramid.
 
@@ -243,6 +244,7 @@ def pyramid_cone_angle(half_angle, sides: int = 4, angle: str = "face") -> float
     return math.atan(0.5 * math.pi * PYRAMID_FACTORS[sides] * tan_face)
 
 
+@float64_scope
 def pyramid(half_angle, sides: int = 4, angle: str = "face") -> Cone:
     r"""A regular 3- or 4-sided pyramidal tip as its axisymmetric equivalent `Cone`.
 
@@ -259,6 +261,7 @@ def pyramid(half_angle, sides: int = 4, angle: str = "face") -> Cone:
 # --------------------------------------------------------------------------------------
 
 
+@float64_scope
 def tabor_parameter(
     radius: Float[ArrayLike, "..."],
     work_of_adhesion: Float[ArrayLike, "..."],
@@ -301,6 +304,7 @@ def tabor_parameter(
     return jnp.where(ok, mu, jnp.nan)
 
 
+@float64_scope
 def depth_limit(profile: AbstractProfile) -> Array:
     r"""The largest indentation [m] that `profile` admits: for `Sphere(R)`
     $g(0.95R) = 0.95R\operatorname{artanh}(0.95) = 1.74R$ (`SPHERE_LIMIT`), `inf` for every
@@ -345,6 +349,7 @@ class ProfileValidity(eqx.Module):
     reason: str = eqx.field(static=True)
 
 
+@float64_scope
 def profile_validity(profile: AbstractProfile, contact_radius) -> ProfileValidity:
     r"""How far `contact_radius` [m] (any shape) lies inside the profile's validity.
 

@@ -17,6 +17,8 @@ provides
 - `dg(x)`: $g'(x)$ for $x \ge 0$ [dimensionless];
 - `integral_g(a)`: $\int_0^a g(x)\,\mathrm{d}x$ [m²], needed for the normal force;
 - `max_radius`: the largest possible contact radius [m] (`inf` except for bounded shapes);
+- `valid_radius`: the largest contact radius the profile describes [m] (`max_radius`; the
+  radius `R` of a `Parabola`, which stands for a sphere);
 - `domain()`: its parameters as `Constraint`s (checked when built with concrete values; under
   `jit`/`vmap` the methods above raise for invalid parameters, and the entry functions
   report them per lane as `RESULTS.invalid_profile`);
@@ -50,7 +52,7 @@ from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float
 
 from ._root import bracketed_root
-from ._solvers import as_float
+from ._solvers import as_float, float64_scope
 from ._validate import Constraint, float_field, guarded, module_repr
 
 __all__ = [
@@ -70,6 +72,7 @@ __all__ = [
 ]
 
 
+@float64_scope
 def power_law_factor(n: ArrayLike) -> Array:
     r"""The MDR stretch factor $\kappa(n) = \sqrt\pi\,\Gamma(n/2+1)/\Gamma(n/2+1/2)$.
 
@@ -343,6 +346,14 @@ class AbstractProfile(eqx.Module):
     def max_radius(self) -> Array:
         """Largest contact radius [m] the profile admits (`inf` unless bounded)."""
 
+    @property
+    def valid_radius(self) -> Array:
+        """Largest contact radius [m] the profile describes: `max_radius`, and for a profile
+        standing for a sphere its radius (`Parabola`: `R`; no sphere contact reaches beyond
+        it). The entry functions refuse (eagerly) or flag (`RESULTS.beyond_profile`) a
+        contact radius beyond it."""
+        return self.max_radius
+
     @abc.abstractmethod
     def contact_radius(self, depth, *, lo=None, hi=None) -> Array:
         r"""The non-adhesive MDR contact radius $a$ with $g(a) = d$ [m] for `depth` $d$ [m]
@@ -580,6 +591,11 @@ class Parabola(AbstractPowerLawProfile):
     @guarded
     def integral_g(self, a):
         return jnp.asarray(a) ** 3 / (3 * self.R)
+
+    @property
+    def valid_radius(self):
+        # the paraboloid stands for a sphere of radius R (its error grows as (a/R)^2)
+        return self.R
 
     def front_radius(self, m, c, lo, hi=None):
         return _parabola_stable_radius(m, c, self.R)

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jaxtyping import ArrayLike, Float
 
@@ -65,16 +66,19 @@ from ._solution import (
     ContactSolution,
     RetractDetails,
     fold_results,
-    is_error,
     nan_where,
+    raise_if_error,
 )
-from ._solvers import as_float, cast_floats, float_dtype, smallest
+from ._solvers import as_float, cast_floats, float64_scope, float_dtype, smallest
 from ._validate import (
     Constraint,
+    check_contact_radius,
     check_domain_plausible,
     check_finite,
     check_plausible,
     check_times,
+    contact_radius_plausible,
+    contact_radius_valid,
     domain_ok,
     domain_plausible,
     is_concrete,
@@ -100,6 +104,7 @@ def _segment_deff(u, depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio):
     return depth + delta_a + slope * u + glass_ratio * jnp.sum(w)
 
 
+@float64_scope
 def retract(
     rheology: AbstractRheology,
     profile: AbstractProfile,
@@ -192,6 +197,12 @@ def retract(
             check_plausible(c.name, c.value, c.kind)
         check_plausible("ts", ts, "time", magnitude=True)
         check_plausible("displacement", displacement, "length", magnitude=True)
+    if contact_radius is not None:
+        check_contact_radius(profile, contact_radius,
+                             f"`contact_radius` = {_number(contact_radius)} m")
+    elif is_concrete((profile, depth)):
+        check_contact_radius(profile, _relaxed_radius(profile, as_float(depth)),
+                             f"`depth` = {_number(depth)} m")
     dtype = float_dtype(rheology, profile, work_of_adhesion, depth, ts, velocity, displacement,
                         contact_radius)
     args = cast_floats(
@@ -201,6 +212,17 @@ def retract(
         dtype,
     )
     return _retract(*args, method, throw, check_plausibility)
+
+
+@eqx.filter_jit
+def _relaxed_radius(profile, depth):
+    """The non-adhesive radius $g(a_0) = d_0$ (compiled: a bracketed root for profiles
+    without a closed form)."""
+    return profile.contact_radius(depth)
+
+
+def _number(value) -> str:
+    return f"{float(np.asarray(value)):g}" if is_concrete(value) else "(traced)"
 
 
 def _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius):
@@ -230,6 +252,8 @@ def _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
         checks.append((jnp.all(jnp.isfinite(displacement)), RESULTS.invalid_displacement))
     if contact_radius is not None:
         checks.append((contact_radius <= profile.max_radius, RESULTS.invalid_contact_radius))
+    # the relaxed contact radius: a plausible length, within what the profile describes
+    a0 = profile.contact_radius(depth) if contact_radius is None else contact_radius
     if check_plausibility:
         ok = domain_plausible(rheology) & domain_plausible(profile)
         for c in scalars:
@@ -237,7 +261,9 @@ def _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
         ok = ok & plausible(ts, "time", magnitude=True)
         if displacement is not None:
             ok = ok & plausible(displacement, "length", magnitude=True)
+        ok = ok & contact_radius_plausible(a0)
         checks.append((ok, RESULTS.implausible_input))
+    checks.append((contact_radius_valid(profile, a0), RESULTS.beyond_profile))
     return checks
 
 
@@ -255,7 +281,7 @@ def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, conta
     result = fold_results(sol.result, checks)
     sol = eqx.tree_at(lambda s: s.result, sol, result)
     if throw:
-        return result.error_if(sol, is_error(result))
+        return raise_if_error(sol, result)
     # a lane with invalid input: NaN (not numbers that look plausible)
     return nan_where(jnp.logical_not(inputs_ok), sol)
 

@@ -9,6 +9,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._validate import branched_error_if
+
 __all__ = [
     "RESULTS",
     "ContactSolution",
@@ -18,6 +20,7 @@ __all__ = [
     "fold_results",
     "is_error",
     "nan_where",
+    "raise_if_error",
 ]
 
 
@@ -28,8 +31,10 @@ class RESULTS(eqx.Enumeration):
     errors, raised when `throw=True` and returned in `.result` when `throw=False` (the other
     fields of an erroneous lane are meaningless: NaN where an input is invalid). The input
     checks come first, in the order of the arguments; `implausible_input` (a value far
-    outside the range of its unit) can be switched off with
-    `jaxcontact.plausibility_checks(False)`.
+    outside the range of its unit, also a contact radius computed from the inputs: a
+    profile so flat that the contact would be kilometres wide) can be switched off with
+    `jaxcontact.plausibility_checks(False)`; `beyond_profile` (a contact radius beyond the
+    profile's `valid_radius`) cannot.
     """
 
     detached = "The contact detached (jump-off found within the simulated times)."
@@ -74,7 +79,10 @@ class RESULTS(eqx.Enumeration):
     )
     invalid_loading = "`CompliantLoading.stiffness` must be finite and > 0 [N/m]."
     invalid_modulus = "`effective_modulus` must be finite and > 0 [Pa]."
-    invalid_radius = "The contact radius `a` must be finite and >= 0 [m]."
+    invalid_radius = (
+        "The contact radius `a` must be finite, >= 0 and at most the profile's `valid_radius` "
+        "[m] (a Parabola's `R`, a bounded shape's edge)."
+    )
     implausible_input = (
         "An input lies outside the plausible range of its unit (lengths 1e-12-1 m, moduli "
         "1e-3-1e13 Pa, viscosities 1e-6-1e25 Pa s, times 1e-12-1e12 s, work of adhesion "
@@ -87,6 +95,11 @@ class RESULTS(eqx.Enumeration):
         "domain: overflow or underflow for inputs far outside the regime the model is built "
         "for (check the units)."
     )
+    beyond_profile = (
+        "The contact radius exceeds what the profile describes (`valid_radius`): the radius "
+        "`R` of a Parabola, which stands for a sphere (no sphere contact reaches a > R), or "
+        "the edge of a bounded shape. Indent less, or use a larger indenter."
+    )
 
 
 def is_error(result: RESULTS) -> Array:
@@ -95,6 +108,14 @@ def is_error(result: RESULTS) -> Array:
     ok = ok | (result == RESULTS.in_contact)
     ok = ok | (result == RESULTS.successful)
     return jnp.logical_not(ok)
+
+
+def raise_if_error(x, result: RESULTS):
+    """`x` with a run-time check that raises the message of `result` where it is an error
+    (`throw=True`); the check survives `jax.grad`/`jax.jacfwd` under `jit`
+    (`_validate.branched_error_if`)."""
+    return branched_error_if(x, is_error(result), result._value,
+                             result._enumeration._index_to_message)
 
 
 def nan_where(bad, sol):

@@ -15,10 +15,15 @@ The bracketed scalar root finder with implicit derivatives lives in `_root.py`
   precision policy of the entry functions (float32 when every floating input is float32,
   float64 otherwise; Python scalars are weakly typed and take the precision of the arrays
   they meet, as in JAX).
+- `float64_scope`: runs a public function called eagerly with JAX's 64-bit types switched
+  on for its own duration (`jax.enable_x64(True)`, local to the calling thread), so that the
+  policy above holds whatever the caller's `jax_enable_x64`; under the caller's own `jit`,
+  `grad` or `vmap` the caller's setting holds. Importing the library changes nothing.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import jax
@@ -31,6 +36,7 @@ __all__ = [
     "as_float",
     "cast_floats",
     "float_dtype",
+    "float64_scope",
     "floats_to_arrays",
     "golden_section",
     "implicit_extremum",
@@ -45,10 +51,45 @@ __all__ = [
 _GOLDEN = float(0.5 * (np.sqrt(5.0) - 1.0))  # a Python float: weakly typed
 
 
+def _traced(tree) -> bool:
+    """Whether `tree` holds a JAX tracer or the call runs inside a `jit` trace."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree)):
+        return True
+    return isinstance(jnp.zeros(()), jax.core.Tracer)
+
+
+def float64_scope(fn):
+    """Decorate a public function (entry function, constructor converter, profile or
+    rheology method) to run with JAX's 64-bit types on (`jax.enable_x64(True)`, local to
+    the calling thread) when it is called eagerly, the caller's setting restored afterwards.
+
+    The caller's `jax_enable_x64` is never changed (importing `jaxcontact` leaves it alone),
+    yet eagerly float64 inputs (Python floats, NumPy's default float64 arrays) are computed
+    in float64 and float32 inputs in float32 (`float_dtype`). Called inside the caller's
+    own transformation (`jit`, `grad`, `vmap`: a tracer among the arguments, or a `jit`
+    trace) the function follows the caller's setting, because JAX lowers and differentiates
+    the caller's program after this call returns: with x64 off that program is float32
+    throughout (switch x64 on, globally or with `jax.enable_x64(True)` around the
+    transformed call, for float64). The returned arrays keep their dtype; with x64 off, JAX
+    truncates float64 arrays to float32 (with its warning) in the caller's own operations.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if jax.config.jax_enable_x64 or _traced((args, kwargs)):
+            return fn(*args, **kwargs)
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+@float64_scope
 def as_float(x) -> Array:
     """`x` as a JAX array of inexact dtype: float (and complex) inputs keep their precision
     (so float32 stays float32 for GPU sweeps); integers, bools and Python scalars become the
-    default float."""
+    default float (float64 when called eagerly, whatever the caller's `jax_enable_x64`:
+    `float64_scope`)."""
     x = jnp.asarray(x)
     return x if jnp.issubdtype(x.dtype, jnp.inexact) else x.astype(float)
 
@@ -66,8 +107,12 @@ def float_dtype(*trees):
 
     float32 when every floating array is float32 (Python floats, being weakly typed, do
     not count), float64 (the default float) when any is float64 or when there is no
-    floating array at all. Integer leaves (counts, options) do not take part.
+    floating array at all. Integer leaves (counts, options) do not take part. float32
+    whenever JAX's 64-bit types are off (inside a caller's transformation with x64 off;
+    see `float64_scope`): float64 leaves are then cast down by `cast_floats`.
     """
+    if not jax.config.jax_enable_x64:
+        return jnp.dtype(jnp.float32)
     leaves = [leaf for leaf in jax.tree_util.tree_leaves(trees) if _is_float_leaf(leaf)]
     return jnp.result_type(*leaves, 0.0) if leaves else jnp.result_type(0.0)
 

@@ -11,6 +11,12 @@ Three layers, all naming the parameter, its unit and the allowed range:
   `jit`/`vmap` with invalid parameters raise at run time (they have no `.result`). Inside the
   entry functions, which report the same problems per lane, the guard is off (`unchecked`).
 
+Every run-time check goes through `error_if`/`branched_error_if` here (not `equinox.error_if`
+directly): their check survives differentiation. `equinox.error_if` passes tangents through
+unchecked, so under `jax.jit(jax.grad(f))` or `jax.jit(jax.jacfwd(f))`, where the primal
+output is unused, the check was removed as dead code and a bad input gave a NaN or a plausible
+gradient instead of an error.
+
 **Plausibility of units.** All inputs are SI. Values far outside the range of their unit
 (`PLAUSIBLE`, e.g. a depth of 4000 m: nanometres given as metres) are reported as an error
 (`ValueError` eagerly, `RESULTS.implausible_input` per lane). For unusual regimes switch the
@@ -30,16 +36,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._solvers import float64_scope
+
 __all__ = [
     "PLAUSIBLE",
     "Condition",
     "Constraint",
+    "check_contact_radius",
     "check_finite",
     "check_plausible",
     "check_domain_plausible",
     "check_positive",
     "check_times",
+    "branched_error_if",
+    "contact_radius_plausible",
+    "contact_radius_valid",
     "domain_ok",
+    "error_if",
     "domain_plausible",
     "guarded",
     "is_concrete",
@@ -185,6 +198,48 @@ class Condition(NamedTuple):
 
 
 # --------------------------------------------------------------------------------------
+# run-time errors that survive differentiation
+# --------------------------------------------------------------------------------------
+
+
+def error_if(x, pred, msg: str):
+    """`x` unchanged, with a run-time check that raises `msg` where `pred` holds (any lane
+    under `vmap`), like `equinox.error_if`, but also under `jax.grad`/`jax.jacfwd` inside
+    `jit` (see `branched_error_if`)."""
+    return branched_error_if(x, pred, 0, (msg,))
+
+
+def branched_error_if(x, pred, index, msgs):
+    """As `equinox.branched_error_if` (raise `msgs[index]` where `pred`), with the check
+    also attached to the tangents: the tangent of every floating leaf of `x` is multiplied
+    by `1 + z`, where `z` is a zero computed behind the same check from the primal values.
+    A derivative (forward or reverse mode) therefore depends on the check, which is no
+    longer removed as dead code when only the derivative is used; the tangent map stays
+    linear (a product with a primal value), so `grad`, `jacfwd`, `jacrev` and `vmap` compose.
+    """
+    return _checked(x, pred, index, msgs=tuple(msgs))
+
+
+@eqx.filter_custom_jvp
+def _checked(x, pred, index, *, msgs):
+    return eqx.branched_error_if(x, pred, index, msgs)
+
+
+@_checked.def_jvp
+def _checked_jvp(primals, tangents, *, msgs):
+    x, pred, index = primals
+    tx = tangents[0]
+    out, zero = eqx.branched_error_if((x, jnp.zeros(())), pred, index, msgs)
+
+    def gate(t):
+        if t is None:
+            return None
+        return t * (1 + zero).astype(t.dtype)
+
+    return out, jax.tree_util.tree_map(gate, tx, is_leaf=lambda t: t is None)
+
+
+# --------------------------------------------------------------------------------------
 # guarded methods of profiles and rheologies
 # --------------------------------------------------------------------------------------
 
@@ -239,16 +294,18 @@ def guarded(method):
     holds traced values (under `jit`/`vmap`) the result carries a run-time check of the
     domain (`equinox.error_if`, the message names every parameter and its range); concrete
     objects were checked when they were built, and the entry functions switch the guard off
-    (`unchecked`) because they report the same problem in `.result`."""
+    (`unchecked`) because they report the same problem in `.result`. The method runs in
+    `float64_scope` (float64 inputs stay float64 whatever the caller's `jax_enable_x64`)."""
 
     @functools.wraps(method)
+    @float64_scope
     def wrapper(self, *args, **kwargs):
         if _UNCHECKED.get() or is_concrete(self):
             return method(self, *args, **kwargs)
         with unchecked():  # one check, on the outermost call
             out = method(self, *args, **kwargs)
             ok = domain_ok(self)
-        return eqx.error_if(out, jnp.logical_not(ok), domain_message(self))
+        return error_if(out, jnp.logical_not(ok), domain_message(self))
 
     return wrapper
 
@@ -427,3 +484,51 @@ def module_repr(module) -> str:
             text = plain(value)
         parts.append(f"{f.name}={text}")
     return f"{type(module).__name__}({', '.join(parts)})"
+# validity of a contact radius computed from the inputs
+# --------------------------------------------------------------------------------------
+
+
+def contact_radius_valid(profile, a):
+    """Traced: no entry of the contact radius `a` [m] beyond `profile.valid_radius` (a
+    Parabola's `R`, a bounded shape's edge); NaN entries pass (other checks report them)."""
+    return jnp.all(jnp.logical_not(jnp.asarray(a) > profile.valid_radius))
+
+
+def contact_radius_plausible(a):
+    """Traced: the contact radius `a` [m] (its largest entry) is a plausible length
+    (`PLAUSIBLE["length"]`): a profile so flat that the contact would be kilometres wide (a
+    Cone with half-angle near pi/2, a PowerLaw with a tiny prefactor) is a unit mistake as
+    surely as a Parabola with `R` = 1e29 m."""
+    return plausible(a, "length", magnitude=True)
+
+
+def check_contact_radius(profile, a, source: str) -> None:
+    """Eager: `ValueError` if a concrete contact radius `a` [m], computed from `source` (the
+    inputs that set it, e.g. "`depth` = 0.004 m"), exceeds `profile.valid_radius` or (with
+    the plausibility checks on) the plausible range of a length."""
+    if not (is_concrete(a) and is_concrete(profile)):
+        return
+    arr = np.asarray(a, dtype=float).ravel()
+    arr = arr[np.isfinite(arr)]
+    if arr.size == 0:
+        return
+    got = float(arr.max())
+    limit = float(np.asarray(profile.valid_radius))
+    name = type(profile).__name__
+    if got > limit:
+        what = ("radius `R`" if math.isfinite(limit) and hasattr(profile, "R")
+                else "`valid_radius`")
+        raise ValueError(
+            f"{source} gives a contact radius of {got:g} m, beyond the {name}'s {what} "
+            f"{limit:g} m, the largest contact radius it describes (a paraboloid stands for a "
+            "sphere: no sphere contact reaches a > R). Indent less, or use a larger indenter."
+        )
+    lo, hi, unit = PLAUSIBLE["length"]
+    if plausibility_enabled() and got > hi:
+        raise ValueError(
+            f"{source} gives a contact radius of {got:g} m with the {name}, outside the "
+            f"plausible range [{lo:g}, {hi:g}] {unit} of a length: is a parameter of the "
+            "profile in other units (a Cone's `half_angle` near pi/2, a PowerLaw's `c` far "
+            "too small)? If the values are right, switch the check off with "
+            "`jaxcontact.plausibility_checks(False)`."
+        )

@@ -189,6 +189,9 @@ def console_main() -> None:  # pragma: no cover - exercised in subprocess tests
     _RAISE[0] = True  # from here the main thread only waits for the worker
     if isinstance(args, int):
         sys.exit(args)
+    import jax  # imported by _parse; the command's own process computes in float64
+
+    jax.config.update("jax_enable_x64", True)
     box: dict = {}
 
     def work():

@@ -1,5 +1,9 @@
 """Tests of `jaxcontact.sweep` against closed forms, `retract`, `simulate`, and itself on 4
-devices and in float32. Compiled sweeps are shared through module fixtures."""
+devices and in float32. Compiled sweeps are shared through module fixtures.
+
+The references are float64 (closed forms, `retract` and `simulate` with float64 inputs), so
+every sweep compared with them asks for `precision="float64"`: the sweep's default is float32
+on accelerators, and the same tolerances fail on a GPU (9e-7 against rtol 1e-12)."""
 
 import json
 import os
@@ -26,7 +30,7 @@ CHUNK = 16
 
 @pytest.fixture(scope="module")
 def relaxed():
-    return jc.sweep(STD, model=RELAXED, chunk_size=CHUNK, progress=False)
+    return jc.sweep(STD, model=RELAXED, chunk_size=CHUNK, progress=False, precision="float64")
 
 
 # ---------------------------------------------------------------------------------------
@@ -60,7 +64,8 @@ def test_elastic_jkr_closed_forms():
     G, dg, R = 1e5, 0.05, 1e-4
     depths = np.array([3e-7, 1e-6, 4e-6, 3e-5])  # pinned jump-off ... long receding front
     ds = jc.sweep({"G_inf": G, "work_of_adhesion": dg, "R": R, "depth": depths,
-                   "velocity": 1e-4}, model=jc.RelaxedStart(samples=2000), progress=False)
+                   "velocity": 1e-4}, model=jc.RelaxedStart(samples=2000), progress=False,
+                  precision="float64")
     assert (ds.status == int(jc.RESULTS.detached._value)).all()
     W = np.array([jkr_separation_work(G, dg, R, d) for d in depths])
     # the relaxed start's separation work is exact (closed form + Gauss in sqrt(T_b - t)):
@@ -92,7 +97,8 @@ def test_elastic_flat_punch_kendall():
     # int_{d_j}^0 8 G a (-d) dd = 4 G a d_j^2 = 2 pi a^2 dgamma (independent of G)
     G, dg, a = 1e5, 0.05, np.array([1e-6, 3e-5])
     ds = jc.sweep({"G_inf": G, "work_of_adhesion": dg, "punch_radius": a, "depth": 1e-7,
-                   "velocity": 1e-4}, model=jc.RelaxedStart(samples=20), progress=False)
+                   "velocity": 1e-4}, model=jc.RelaxedStart(samples=20), progress=False,
+                  precision="float64")
     assert (ds.status == int(jc.RESULTS.detached._value)).all()
     np.testing.assert_allclose(ds.jumpoff_force_N.values, -np.sqrt(32 * np.pi * a**3 * G * dg),
                                rtol=1e-12)
@@ -156,6 +162,7 @@ def test_relaxed_summaries_do_not_depend_on_the_samples(relaxed):
     # the summaries are computed without sampling the curve; `curves=True` adds the curves
     # and leaves the summaries as they are
     ds = jc.sweep(STD, model=jc.RelaxedStart(samples=50), chunk_size=CHUNK, progress=False,
+                  precision="float64",
                   curves=True)
     for name in SUMMARIES:  # another compiled program: the same to round-off
         np.testing.assert_allclose(ds[name].values, relaxed[name].values, rtol=1e-14)
@@ -210,14 +217,16 @@ def test_relaxed_matches_retract_and_lift_reaches_jumpoff(relaxed):
 def test_points_and_list_of_sets_match_grid(relaxed):
     g1, dep, vel = np.meshgrid(STD["G1"], STD["depth"], STD["velocity"], indexing="ij")
     cols = dict(STD, G1=g1.ravel(), depth=dep.ravel(), velocity=vel.ravel())
-    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False)
+    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False,
+                  precision="float64")
     assert ds.max_tensile_force_N.dims == ("point",) and ds.G1.dims == ("point",)
     flat = relaxed.stack(point=("G1", "depth", "velocity"))
     for name in SUMMARIES:
         np.testing.assert_allclose(ds[name].values, flat[name].values, rtol=1e-12)
     sets = [dict(G0=1e6, G1=2e5, eta1=1e4, work_of_adhesion=0.05, R=1e-4, depth=1e-6,
                  velocity=v) for v in (1e-6, 1e-2)]
-    ds2 = jc.sweep(points=sets, model=RELAXED, chunk_size=CHUNK, progress=False)
+    ds2 = jc.sweep(points=sets, model=RELAXED, chunk_size=CHUNK, progress=False,
+                   precision="float64")
     np.testing.assert_allclose(ds2.jumpoff_time_s.values,
                                relaxed.jumpoff_time_s.isel(G1=0, depth=0).values[[0, 2]],
                                rtol=1e-12)
@@ -254,7 +263,8 @@ def test_chunks_give_the_same_result(relaxed):
     reps = np.resize(np.arange(12), 40)
     cols = dict(STD, G1=flat.G1.values[reps], depth=flat.depth.values[reps],
                 velocity=flat.velocity.values[reps])
-    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False)
+    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False,
+                  precision="float64")
     assert ds.attrs["chunk_size"] == CHUNK
     for name in SUMMARIES:
         np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
@@ -266,9 +276,10 @@ def test_bad_point_is_isolated(relaxed):
     # (1e-320 Pa s is no plausible viscosity: the eager check names it unless switched off)
     pts = dict(STD, G1=2e5, depth=1e-6, velocity=1e-6, eta1=[1e4, 1e-320, 1e4])
     with pytest.raises(ValueError, match=r"`eta1` lies outside the plausible range"):
-        jc.sweep(points=pts, model=RELAXED, chunk_size=CHUNK, progress=False)
+        jc.sweep(points=pts, model=RELAXED, chunk_size=CHUNK, progress=False, precision="float64")
     with jc.plausibility_checks(False):
-        ds = jc.sweep(points=pts, model=RELAXED, chunk_size=CHUNK, progress=False)
+        ds = jc.sweep(points=pts, model=RELAXED, chunk_size=CHUNK, progress=False,
+                      precision="float64")
     assert list(ds.status.values) == [int(jc.RESULTS.detached._value),
                                       int(jc.RESULTS.invalid_input._value),
                                       int(jc.RESULTS.detached._value)]
@@ -296,7 +307,8 @@ HISTORY = jc.ApproachHoldLift(samples=480, duration_factor=1.05, cells=64)
 @pytest.fixture(scope="module")
 def history():
     grid = dict(STD, depth=4e-6, hold=np.array([0.0, 0.02, 0.5]))
-    return jc.sweep(grid, model=HISTORY, chunk_size=CHUNK, progress=False, curves=True)
+    return jc.sweep(grid, model=HISTORY, chunk_size=CHUNK, progress=False,
+                    precision="float64", curves=True)
 
 
 def test_history_detaches_within_the_bound(history):
@@ -354,7 +366,7 @@ FOUR_DEVICES = textwrap.dedent(
     import json, numpy as np, jax
     import jaxcontact as jc
     from tests.test_sweep import STD, RELAXED
-    ds = jc.sweep(STD, model=RELAXED, chunk_size=16, progress=False)
+    ds = jc.sweep(STD, model=RELAXED, chunk_size=16, progress=False, precision="float64")
     print(json.dumps(dict(devices=ds.attrs["devices"], chunk=ds.attrs["chunk_size"],
         n=len(jax.devices()),
         values={k: ds[k].values.ravel().tolist() for k in ds.data_vars})))

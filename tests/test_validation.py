@@ -6,6 +6,9 @@ Compiled functions are shared (module fixtures) and the histories short, so that
 stays cheap; `benchmarks/fuzz_forward.py` runs the long version of these checks.
 """
 
+import os
+import re
+
 import diffrax
 import equinox as eqx
 import jax
@@ -57,6 +60,8 @@ BAD_RETRACT = [
     (6, np.nan, R.invalid_velocity), (6, 0.0, R.invalid_velocity), (6, -1e-4, R.invalid_velocity),
     (5, 4000.0, R.implausible_input), (3, 1e-300, R.implausible_input),
     (0, 1e30, R.implausible_input), (6, 1e6, R.implausible_input),
+    # a relaxed contact radius sqrt(R d0) = 6.3 R: no sphere contact reaches beyond R
+    (5, 4e-3, R.beyond_profile),
 ]
 BAD_TS = [
     (TS[::-1], R.invalid_times), (np.where(np.arange(N_T) == 5, np.nan, TS), R.invalid_times),
@@ -129,7 +134,12 @@ def test_plausibility_switch():
     with pytest.raises(ValueError, match="plausibility_checks"):
         jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=D0, velocity=V)
     with jc.plausibility_checks(False):
-        sol = jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=D0, velocity=V, throw=False)
+        # the geometry is no plausibility check: a contact radius sqrt(R d0) = 2e-153 m on a
+        # sphere of radius 1e-300 m is refused with the checks off too
+        with pytest.raises(ValueError, match="beyond the Parabola's radius"):
+            jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=D0, velocity=V)
+        sol = jc.retract(rh, jc.Parabola(1e-300), DG, ts, depth=1e-301, velocity=V,
+                         throw=False)
         # finite inputs that overflow are not called "non-finite input"
         assert sol.result in (R.non_finite_result, R.detached, R.in_contact)
         assert not bool(sol.result == R.invalid_input)
@@ -160,6 +170,7 @@ def test_simulate_reports_every_bad_lane():
         (G0, DG, ts[::-1], d, R.invalid_times),
         (G0, DG, ts, np.where(np.arange(40) == 3, np.nan, d), R.invalid_displacement),
         (G0, DG, ts, d * 1e9, R.implausible_input),
+        (G0, DG, ts, d * 40, R.beyond_profile),  # a radius sqrt(R 40 d0) = 4 R
     ]
     cols = [jnp.asarray(np.stack([r[k] for r in rows])) for k in range(4)]
     sol = jax.jit(jax.vmap(lane))(*cols)
@@ -333,3 +344,216 @@ def test_plausibility_block_is_local_to_its_context_and_the_session_switch_globa
     finally:
         jc.plausibility_checks(True)
     assert plausibility_enabled()
+
+
+# --------------------------------------------------------------------------------------
+# throw=True under differentiation (jit(grad), jit(jacfwd)); per-lane .result under
+# jit(vmap(grad)) with throw=False
+# --------------------------------------------------------------------------------------
+
+# one bad value of every kind a parameter vector (G0, G1, eta1, R, dgamma, d0, v) can carry,
+# including the two that gave a plausible gradient instead of an error (a depth of 4000 m,
+# G0 = 1e40 Pa)
+BAD_GRAD = [
+    (0, -1e6, R.invalid_rheology), (2, 0.0, R.invalid_rheology),
+    (3, 0.0, R.invalid_profile), (4, np.nan, R.invalid_work_of_adhesion),
+    (5, -1e-6, R.invalid_depth), (6, -1e-4, R.invalid_velocity),
+    (5, 4000.0, R.implausible_input), (0, 1e40, R.implausible_input),
+]
+
+
+def _retract_p(p, ts, throw):
+    return jc.retract(jc.StandardModel(p[0], p[1], p[2]), jc.Parabola(p[3]), p[4], ts,
+                      depth=p[5], velocity=p[6], throw=throw)
+
+
+def _raises_item(fn, item, *args):
+    with pytest.raises(Exception, match=re.escape(_msg(item)[:40])):
+        jax.block_until_ready(fn(*args))
+
+
+@pytest.mark.parametrize("transform", [jax.grad, jax.jacfwd])
+def test_throw_raises_under_jit_of_a_derivative(transform):
+    """The checks of `retract`, `pull_off`, the elastic relations and the guarded profile
+    methods survive `jit(grad)` / `jit(jacfwd)` (they were removed as dead code: NaN or a
+    plausible gradient, e.g. 1896 for a depth of 4000 m)."""
+    ts = jnp.asarray(TS)
+    base = np.array([G0, G1, ETA1, RAD, DG, D0, V])
+    d_retract = jax.jit(transform(lambda p: _retract_p(p, ts, True).max_tensile_force))
+    assert np.all(np.isfinite(np.asarray(d_retract(jnp.asarray(base)))))
+    for k, value, item in BAD_GRAD:
+        p = base.copy()
+        p[k] = value
+        _raises_item(d_retract, item, jnp.asarray(p))
+
+    d_po = jax.jit(transform(lambda q: jc.pull_off(
+        jc.Parabola(q[0]), effective_modulus=q[1], work_of_adhesion=DG).force))
+    assert np.all(np.isfinite(np.asarray(d_po(jnp.array([RAD, 4 * G0])))))
+    _raises_item(d_po, R.invalid_modulus, jnp.array([RAD, -4 * G0]))
+    _raises_item(d_po, R.implausible_input, jnp.array([5e3, 4 * G0]))
+
+    d_jkr = jax.jit(transform(lambda a: jc.jkr_force(
+        jc.Parabola(RAD), a, effective_modulus=4 * G0, work_of_adhesion=DG)))
+    _raises_item(d_jkr, R.invalid_radius, jnp.asarray(-1e-6))
+
+    d_g = jax.jit(transform(lambda n: jc.PowerLaw(1e3, n).g(1e-6)))
+    assert np.isfinite(float(d_g(1.5)))
+    with pytest.raises(Exception, match="`n` must be finite and in"):
+        jax.block_until_ready(d_g(0.4))
+
+
+def test_simulate_throw_raises_under_jit_of_a_derivative():
+    """`simulate` shares the mechanism (`raise_if_error`); one transform (its derivative
+    compiles slowly), a scalar parameter."""
+    t_sim = np.linspace(0.0, 0.06, 24)
+    u_sim = jnp.asarray(np.interp(t_sim, [0, 0.02, 0.03, 0.06], [0, D0, D0, -D0]))
+
+    def sim(dg):
+        return jc.simulate(jc.StandardModel(G0, G1, ETA1), jc.Parabola(RAD), dg,
+                           jnp.asarray(t_sim), u_sim, grid=8).max_tensile_force
+
+    d_sim = jax.jit(jax.jacfwd(sim))
+    assert np.isfinite(float(d_sim(DG)))
+    _raises_item(d_sim, R.invalid_work_of_adhesion, -DG)
+    _raises_item(d_sim, R.implausible_input, 1e3)
+
+
+def test_vmapped_gradients_report_every_lane():
+    """jit(vmap(value_and_grad)) with `throw=False`: the status per lane (aux), the gradient
+    of the good lane that of the unbatched call, no error raised."""
+    ts = jnp.asarray(TS)
+    base = np.array([G0, G1, ETA1, RAD, DG, D0, V])
+    rows = [base]
+    for k, value, _ in BAD_GRAD:
+        p = base.copy()
+        p[k] = value
+        rows.append(p)
+
+    def f(p):
+        sol = _retract_p(p, ts, False)
+        return sol.max_tensile_force, sol.result
+
+    vg = jax.jit(jax.vmap(jax.value_and_grad(f, has_aux=True)))
+    (_, result), grads = vg(jnp.asarray(np.stack(rows)))
+    expect = [R.detached] + [item for _, _, item in BAD_GRAD]
+    assert [_code(result, i) for i in range(len(rows))] == [_msg(e) for e in expect]
+    ref = jax.grad(lambda p: _retract_p(p, ts, True).max_tensile_force)(jnp.asarray(base))
+    np.testing.assert_allclose(np.asarray(grads[0]), np.asarray(ref), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# importing leaves the caller's jax_enable_x64 alone; eager calls stay float64
+# --------------------------------------------------------------------------------------
+
+_X64_SCRIPT = r"""
+import warnings
+warnings.simplefilter("error")
+import jax, jax.numpy as jnp, numpy as np
+import jaxcontact as jc, fitting
+assert not jax.config.jax_enable_x64, "import switched x64 on"
+ts = np.linspace(0.0, 0.1, 32)
+rh, prof = jc.StandardModel(1e6, 2e5, 1e4), jc.Parabola(1e-4)
+sol = jc.retract(rh, prof, 0.05, ts, depth=4e-6, velocity=1e-4)
+po = jc.pull_off(prof, effective_modulus=4e6, work_of_adhesion=0.05)
+u = np.interp(ts, [0.0, 0.05, 0.1], [0.0, 4e-6, -4e-6])
+sim = jc.simulate(rh, prof, 0.05, ts, u, grid=8)
+# the caller's own arrays and a float32 program inside the caller's jit stay float32
+f32 = jax.jit(lambda t, d: jc.retract(rh, prof, 0.05, t, d).force)(
+    jnp.asarray(ts, jnp.float32), jnp.asarray(4e-6 - 1e-4 * ts, jnp.float32))
+# a fitting entry function: the truth of synthetic data has zero residuals
+curve = fitting.Curve(time=ts, displacement=np.asarray(sol.displacement),
+                      force=np.asarray(sol.force), segment=np.zeros(32, int),
+                      segment_names=("retract",))
+spec = fitting.make_spec()
+data = fitting.prepare_curves([curve], spec, radius=1e-4)
+r = fitting.residuals(np.array([1e6, 2e5, 1e4, 0.05]), data, spec)
+print(jax.config.jax_enable_x64, sol.force.dtype, float(po.force), sim.force.dtype,
+      jnp.ones(2).dtype, f32.dtype, data.ts.dtype, r.dtype, float(np.max(np.abs(r))))
+"""
+
+
+def test_import_leaves_x64_alone_and_eager_calls_stay_float64():
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    out = subprocess.run([sys.executable, "-c", _X64_SCRIPT], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    x64, f, po, fs, ones, f32, dts, dr, rmax = out.stdout.split()
+    assert x64 == "False" and ones == "float32" and f32 == "float32"
+    assert f == fs == dts == dr == "float64"
+    # float64 accuracy: the closed form of the parabola's pull-off under displacement control
+    assert float(po) == pytest.approx(-5 / 6 * np.pi * 0.05 * 1e-4, rel=1e-13)
+    assert float(rmax) <= np.sqrt(12.0) + 1e-6  # only the samples at the jump-off differ
+
+
+# --------------------------------------------------------------------------------------
+# odd geometry: a contact radius beyond what the profile describes, or kilometres wide
+# --------------------------------------------------------------------------------------
+
+
+def test_contact_beyond_the_sphere_or_implausibly_wide_is_refused():
+    """Every entry point refuses (eagerly, naming the parameter) a contact radius beyond a
+    Parabola's R, and (plausibility of units) one beyond 1 m: a PowerLaw with a tiny
+    prefactor is refused as the equivalent Parabola (f = r^2/(2R): c = 1/(2R)) is, a cone
+    with a half-angle near pi/2. These gave -2.2e13 N, -4.1e7 N, a positive "max tensile
+    force" of 2.24 N and 5.3e10 N before."""
+    ts = jnp.asarray(TS)
+    rh = jc.StandardModel(G0, G1, ETA1)
+    kw = dict(effective_modulus=4 * G0, work_of_adhesion=DG)
+    with pytest.raises(ValueError, match=r"`depth` = 0.004 m .* beyond the Parabola's radius"):
+        jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=4e-3, velocity=V)
+    # just inside: a0 = 0.9 R
+    assert bool(jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=0.81 * RAD, velocity=V).ok)
+    with pytest.raises(ValueError, match="contact_radius"):
+        jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=D0, velocity=V,
+                   contact_radius=1.5 * RAD)
+    with pytest.raises(ValueError, match=r"`a` \(contact radius\) .*valid_radius"):
+        jc.jkr_force(jc.Parabola(RAD), 1.0, **kw)
+    with pytest.raises(ValueError, match="`depth` .* beyond"):
+        jc.profile_radius(jc.Parabola(RAD), 4e-3)
+    with pytest.raises(ValueError, match="`displacement` up to .* beyond"):
+        jc.simulate(rh, jc.Parabola(RAD), DG, ts, 4e-3 * np.sin(np.pi * TS / TS[-1]))
+    steep = jc.Cone(np.pi / 2 - 1e-12)
+    for prof in (jc.PowerLaw(1e-30, 2.0), jc.Parabola(5e29), steep):
+        with pytest.raises(ValueError, match="plausible range"):
+            jc.retract(rh, prof, DG, ts, depth=1e-6, velocity=V)
+    with pytest.raises(ValueError, match="plausible range"):
+        jc.pull_off(steep, **kw)
+    with pytest.raises(ValueError, match="plausible range"):
+        jc.jkr_contact_radius(steep, 1e-6, **kw)
+    # the size check is one of the plausibility checks (switchable), the sphere's R is not
+    with jc.plausibility_checks(False):
+        assert bool(jc.retract(rh, jc.PowerLaw(1e-30, 2.0), DG, ts, depth=1e-6,
+                               velocity=V).ok)
+        with pytest.raises(ValueError, match="beyond the Parabola's radius"):
+            jc.retract(rh, jc.Parabola(RAD), DG, ts, depth=4e-3, velocity=V)
+
+
+def test_odd_geometry_is_flagged_per_lane():
+    def po(half_angle, E):
+        return jc.pull_off(jc.Cone(half_angle), effective_modulus=E, work_of_adhesion=DG,
+                           throw=False)
+
+    sol = jax.jit(jax.vmap(po))(jnp.array([1.2, np.pi / 2 - 1e-12]), jnp.array([4e6, 4e6]))
+    assert [_code(sol.result, i) for i in range(2)] == [_msg(R.successful),
+                                                        _msg(R.implausible_input)]
+    assert np.isfinite(float(sol.force[0])) and np.isnan(float(sol.force[1]))
+    a = jnp.array([0.5 * RAD, 2 * RAD])
+    out = jax.jit(lambda a: jc.jkr_force(jc.Parabola(RAD), a, effective_modulus=4e6,
+                                         work_of_adhesion=DG, throw=False))(a)
+    assert np.isfinite(float(out[0])) and np.isnan(float(out[1]))
+
+
+def test_sweep_flags_points_beyond_the_sphere_and_refuses_a_flat_cone():
+    ds = jc.sweep({"G_inf": 1e5, "work_of_adhesion": DG, "R": RAD,
+                   "depth": np.array([1e-6, 4e-3]), "velocity": 1e-4},
+                  model=jc.RelaxedStart(samples=20), progress=False, precision="float64")
+    assert int(ds.status[0]) == int(R.detached._value)
+    assert int(ds.status[1]) == int(R.beyond_profile._value)
+    assert np.isnan(float(ds.max_tensile_force_N[1]))
+    with pytest.raises(ValueError, match="contact radius at `depth`"):
+        jc.sweep({"G_inf": 1e5, "work_of_adhesion": DG, "half_angle": np.pi / 2 - 1e-12,
+                  "depth": 1e-6, "velocity": 1e-4}, model=jc.RelaxedStart(samples=20),
+                 progress=False, precision="float64")

@@ -19,18 +19,22 @@ from .._solution import (
     ErrorEstimate,
     FoundationDetails,
     fold_results,
-    is_error,
     nan_where,
+    raise_if_error,
 )
-from .._solvers import as_float, cast_floats, float_dtype, safe_div, smallest
+from .._solvers import as_float, cast_floats, float64_scope, float_dtype, safe_div, smallest
 from .._validate import (
     Constraint,
+    check_contact_radius,
     check_domain_plausible,
     check_finite,
     check_plausible,
     check_times,
+    contact_radius_plausible,
+    contact_radius_valid,
     domain_ok,
     domain_plausible,
+    is_concrete,
     plausibility_enabled,
     plausible,
     times_ok,
@@ -42,6 +46,7 @@ from ._options import FoundationGrid
 from ._state import FoundationState, StepStart, _Carry, _MinimumPair
 
 
+@float64_scope
 def simulate(
     rheology: AbstractRheology,
     profile: AbstractProfile,
@@ -148,6 +153,12 @@ def simulate(
         check_plausible("work_of_adhesion", work_of_adhesion, "work_of_adhesion")
         check_plausible("ts", ts, "time", magnitude=True)
         check_plausible("displacement", u, "length", magnitude=True)
+    if isinstance(loading, DisplacementControl) and is_concrete((profile, u)) and u.size:
+        # the largest non-adhesive radius of the history (the adhesive one, reported by the
+        # solution's status, is a little larger); skipped inside a caller's trace
+        deepest = max(float(np.max(np.asarray(u))), 0.0)
+        check_contact_radius(profile, _touch_radius(profile, deepest),
+                             f"`displacement` up to {deepest:g} m")
 
     # one compiled program serves every call with the same configuration (types, static
     # options, shapes), whatever the parameter values
@@ -175,8 +186,13 @@ def simulate(
         sol = eqx.tree_at(lambda s: s.details.error_estimate, sol, estimate,
                           is_leaf=lambda x: x is None)
     if throw:
-        sol = sol.result.error_if(sol, is_error(sol.result))
+        sol = raise_if_error(sol, sol.result)
     return sol
+
+
+@eqx.filter_jit
+def _touch_radius(profile, depth):
+    return profile.contact_radius(depth)
 
 
 def _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
@@ -210,6 +226,12 @@ def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
         checks = _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
                                check_plausibility)
         sol = _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
+        # the contact radii reached: plausible lengths, within what the profile describes
+        if check_plausibility:
+            checks.append((contact_radius_plausible(sol.contact_radius),
+                           RESULTS.implausible_input))
+        checks.append((contact_radius_valid(profile, sol.contact_radius),
+                       RESULTS.beyond_profile))
     inputs_ok = jnp.asarray(True)
     for ok, _ in checks:
         inputs_ok = inputs_ok & ok

@@ -322,9 +322,18 @@ def _valid(front: _Front, T_b, p):
     return ok
 
 
-def _result(sol, d, lift, lift_start, lift_duration, time, curves, valid):
-    """The summaries of a point; a point that is not `valid` gets `invalid_input`."""
+def _beyond_profile(profile, dtype):
+    """A point whose touch radius (g(a0) = d0 = 1 in scaled units) lies beyond what the
+    profile describes (`valid_radius`: a Parabola's R); scale-free, so checked in the
+    model's units."""
+    return profile.contact_radius(jnp.ones((), dtype)) > profile.valid_radius
+
+
+def _result(sol, d, lift, lift_start, lift_duration, time, curves, valid, beyond):
+    """The summaries of a point; a point that is not `valid` gets `invalid_input`, one
+    `beyond` its profile `beyond_profile`."""
     result = RESULTS.where(valid, sol.result, RESULTS.invalid_input)
+    result = RESULTS.where(beyond, RESULTS.beyond_profile, result)
     attached = sol.contact_radius > 0
     detached = jnp.isfinite(sol.jumpoff_time)
     work = _separation_work(d, sol.force, attached, lift, detached, sol.jumpoff_displacement,
@@ -401,6 +410,8 @@ class RelaxedStart(AbstractSweepModel):
             out = dict(time=ts, displacement=sol.displacement, force=sol.force,
                        contact_radius=sol.contact_radius)
         result = RESULTS.where(valid, result, RESULTS.invalid_input)
+        result = RESULTS.where(_beyond_profile(profile, T_b.dtype), RESULTS.beyond_profile,
+                               result)
         bad = is_error(result)
         nan = jnp.asarray(jnp.nan, T_b.dtype)
         summaries = {k: jnp.where(bad, nan, v) for k, v in summaries.items()}
@@ -463,7 +474,8 @@ class ApproachHoldLift(AbstractSweepModel):
                        throw=False)
         lift = jnp.arange(ts.shape[0]) >= n_a + n_h
         valid = _valid(front, T_b, p)
-        return _result(sol, sol.displacement, lift, t_h, duration, ts - t_h, curves, valid)
+        return _result(sol, sol.displacement, lift, t_h, duration, ts - t_h, curves, valid,
+                       _beyond_profile(profile, dtype))
 
     def floats_per_curve(self, arms: int, curves: bool) -> int:
         # XLA's compiled memory measures 9.7 (2000 samples) to 11.7 (500) floats per sample

@@ -8,6 +8,7 @@ import functools
 import numpy as np
 
 from .._solution import RESULTS
+from .._solvers import float64_scope
 from .._validate import check_plausible, plain, plausibility_enabled
 from .._version import __version__
 from ._models import AbstractSweepModel, RelaxedStart
@@ -65,6 +66,7 @@ def _model_repr(model) -> str:
     return repr(model)
 
 
+@float64_scope
 def sweep(
     grid=None,
     *,
@@ -150,6 +152,10 @@ def sweep(
             kind = _PLAUSIBLE_KIND.get(parameter_info(n).dimension)
             if kind is not None:
                 check_plausible(n, a, kind)
+        # the contact radius at each point's depth, a length too: a profile so flat that
+        # the contact would be kilometres wide (a cone's half-angle near pi/2)
+        touch = spec.profile.build(v).contact_radius(v["depth"])
+        check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
     length = v["depth"]
     modulus = spec.material.relaxed_modulus(v)
     tref = v["depth"] / v["velocity"]

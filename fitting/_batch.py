@@ -31,6 +31,7 @@ import time
 from collections.abc import Mapping, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import jaxcontact as jc
@@ -40,9 +41,11 @@ from ._io_afm import FailedCurve
 from ._optimise import (
     DEFAULT_LOCAL_ROUNDS,
     _best_loss,
+    _compile_in_background,
     _finish,
     _improved,
     _merge,
+    _model_at,
     _options,
     _problem,
     solve_batch,
@@ -299,6 +302,10 @@ def fit_each(
             zs = np.concatenate([pb.zs, np.repeat(pb.zs[:1], n_z - len(pb.zs), axis=0)])
             problems[i] = dataclasses.replace(pb, data=stack_batches([pb.data], length),
                                               zs=zs)
+        pb0 = problems[idx[0]]  # the finish's forward model compiles during the search
+        model_at = _compile_in_background(
+            _model_at, pb0.spec, pb0.param, jnp.asarray(pb0.param.internal_host(pb0.zs[0])),
+            pb0.data)
         size = min(chunk, len(idx))
         lanes = workers if workers is not None else min(64, size * n_z)
         for c0 in range(0, len(idx), size):
@@ -325,6 +332,7 @@ def fit_each(
                     if not r.done:              # end points (the same as fit alone)
                         outs[j] = _merge(outs[j], new[j])
                         r.update(_improved(outs[j][1], before[j]))
+            model_at.join()
             timings["optimise"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             for j, i in enumerate(part):

@@ -443,3 +443,32 @@ def test_validity_warnings():
         res = fitting.fit(_curves(), radius=R, n_starts=STARTS, progress=False)
     assert any("no curve has a hold" in w for w in res.warnings)
     assert not any("contact radius reaches" in w for w in res.warnings)  # a0 = 0.29 R
+
+
+def test_host_transforms_match_the_traced_ones():
+    # the numpy copies of the free-vector map (starts, finish) against the traced map and
+    # its forward-mode derivative; z beyond +-40 saturates the logistic
+    import jax
+
+    info = fitting.parameter_info(make_spec("relaxed", "standard", contact_offset=True))
+    names = [n for n, _, _ in info]
+    ref = {"G0": 1e4, "G1": 5e3, "eta1": 7e3, "work_of_adhesion": 1e-3,
+           "contact_offset": 1e-7}
+    param = fitting.make_parameterisation(info, ref, fixed={"G1": 5e3},
+                                          bounds={"G0": (1e2, 1e6), "contact_offset":
+                                                  (-1e-6, 5e-7)},
+                                          scales={"contact_offset": 1e-6})
+    rng = np.random.default_rng(1)
+    zs = np.r_[rng.normal(0, 3, (5, len(param.free))), [[40.0, -45.0, 0.1, 50.0]]]
+    for z in zs:
+        u = np.asarray(param.internal(jnp.asarray(z)))
+        np.testing.assert_allclose(param.internal_host(z), u, rtol=1e-14, atol=1e-300)
+        np.testing.assert_allclose(param.to_natural_host(u),
+                                   np.asarray(param.to_natural(jnp.asarray(u))), rtol=1e-14)
+        jac = jax.jacfwd(lambda zz: param.internal(zz)[jnp.asarray(param.free)])(
+            jnp.asarray(z))
+        np.testing.assert_allclose(param.dinternal_dz(z), np.diagonal(np.asarray(jac)),
+                                   rtol=1e-12, atol=1e-300)
+    us = param.internal_host(zs)
+    np.testing.assert_array_equal(param.z_of(us), np.stack([param.z_of(u) for u in us]))
+    assert len(names) == us.shape[1]

@@ -287,7 +287,7 @@ def fit_each(
                 continue
             try:
                 problems[i] = _problem([items[i]], rheology=rh, previous=previous.get(i),
-                                       **opts)
+                                       host=True, **opts)
             except (ValueError, ArithmeticError) as exc:
                 errors[i] = _message(exc)
         timings["prepare"] += time.perf_counter() - t0
@@ -300,7 +300,8 @@ def fit_each(
         for i in idx:  # one shape for all: padded samples, equal numbers of starts
             pb = problems[i]
             zs = np.concatenate([pb.zs, np.repeat(pb.zs[:1], n_z - len(pb.zs), axis=0)])
-            problems[i] = dataclasses.replace(pb, data=stack_batches([pb.data], length),
+            problems[i] = dataclasses.replace(pb, data=stack_batches([pb.data], length,
+                                                                   host=True),
                                               zs=zs)
         pb0 = problems[idx[0]]  # the finish's forward model compiles during the search
         model_at = _compile_in_background(

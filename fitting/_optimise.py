@@ -424,13 +424,13 @@ class _Problem:
 
 def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
              contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
-             **_) -> _Problem:
+             host=False, **_) -> _Problem:
     spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
     data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
-                          max_samples=max_samples)
+                          max_samples=max_samples, host=host)
     scales = data_scales(curves, spec, profile)
     guess = initial_guess(curves, spec, profile, scales)
     guess.update(normalise_names(initial, names, "initial"))

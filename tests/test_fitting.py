@@ -472,3 +472,22 @@ def test_host_transforms_match_the_traced_ones():
     us = param.internal_host(zs)
     np.testing.assert_array_equal(param.z_of(us), np.stack([param.z_of(u) for u in us]))
     assert len(names) == us.shape[1]
+
+
+def test_host_prepared_batch_equals_the_device_one_and_bad_probes_always_raise(noisy):
+    # fit_each prepares in numpy and transfers once a chunk: the same arrays; the probe's
+    # check is remembered per profile object only when it passed
+    import jax
+
+    spec = make_spec("relaxed", "standard")
+    dev = prepare_curves(noisy, spec, radius=R)
+    host = prepare_curves(noisy, spec, radius=R, host=True)
+    assert isinstance(host.force, np.ndarray)
+    for a, b in zip(jax.tree.leaves(dev), jax.tree.leaves(host), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), b)
+    stacked = fitting.stack_batches([host, host], 70, host=True)
+    assert stacked.ts.shape == (2 * len(noisy), 70) and isinstance(stacked.ts, np.ndarray)
+    bad = jc.Parabola(40.0)  # 40 m: not a probe radius
+    for _ in range(2):
+        with pytest.raises(ValueError, match="R"):
+            prepare_curves(noisy, spec, profile=bad)

@@ -18,9 +18,12 @@ Measured, in one run:
    local_rounds=0)` (one local fit, no rounds) from the
    same start (warm medians, round-robin, and their ratio).
 
-    python benchmarks/bench_fit.py [--repeats 3] [--out benchmarks/results/fit.md]
+    python benchmarks/bench_fit.py [--repeats 3] [--rheologies standard,prony:2]
+        [--out benchmarks/results/fit.md]
 
-Writes the table with machine and date to `--out`. Run time about 10 min on 2 CPU cores.
+The XLA options of `jaxcontact fit` (`fitting.tune_xla_cpu`) are applied first; no
+persistent compilation cache (cold: everything compiled in the process). Writes the table
+with machine and date to `--out`. Run time about 10 min on 2 CPU cores.
 """
 
 from __future__ import annotations
@@ -57,13 +60,17 @@ def _fit(curve, **kw):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--rheologies", default="standard,prony:2",
+                    help="comma-separated rheologies of part 1 (prony:2 takes minutes)")
     ap.add_argument("--out", default="benchmarks/results/fit.md")
     args = ap.parse_args(argv)
+    flags = fitting.tune_xla_cpu()  # as `jaxcontact fit` does, before JAX starts its backend
+    print(f"XLA flags added: {flags or 'none'}", flush=True)
     curve = fitting.load_curve(CURVE)[0]
     rows = []
 
     # 1. default search, cold and warm
-    for rheology in ("standard", "prony:2"):
+    for rheology in args.rheologies.split(","):
         res, cold = _fit(curve, rheology=rheology)
         warm = [_fit(curve, rheology=rheology)[1] for _ in range(args.repeats)]
         rows.append(f"| fit, {rheology}, {fitting.DEFAULT_STARTS} starts and up to "

@@ -4,19 +4,25 @@ curve, in the same run.
 A synthetic map of `--curves` retract curves (`jc.retract`, relaxed start, 1 % noise, the
 standard model with G0, G1, η1 and Δγ varying from point to point by up to ±30 %),
 `--samples` samples each, fitted with the default search (16 starts and the local
-rounds), R = 12 µm. Timed: `fit_each` cold (compilation included) and warm, for each
-`--chunks` value; the loop of `fit` over the same curves (its compilation is shared by all
-curves after the first: equal shapes). Reported: curves/s, the ratio to the loop, and the
-largest relative difference of the fitted values between the two (the same optimum is
-expected).
+rounds), R = 12 µm. Timed: `fit_each` cold (compilation included) and warm (median of
+`--repeats` calls), for each `--chunks` value, with the warm time split into its stages
+(`FitEachResult.timings`: prepare, optimise, finish; ms a curve); the loop of `fit` over
+the same curves (its compilation is shared by all curves after the first: equal shapes;
+left out with `--no-loop`). Reported: curves/s, the ratio to the loop, and the largest
+relative difference of the fitted values between the two (the same optimum is expected),
+and the curves whose χ² is at most the loop's.
 
     python benchmarks/bench_fit_each.py [--curves 32] [--samples 60] [--chunks 8,32]
-        [--out benchmarks/results/fit_each.md]
+        [--repeats 1] [--no-loop] [--quick] [--out benchmarks/results/fit_each.md]
+
+`--quick`: 8 curves, chunk 8, no loop, written to stdout only (a smoke run, e.g. on a
+GPU machine: about a minute on 2 CPU cores, mostly compilation).
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 import time
 import warnings
@@ -57,36 +63,55 @@ def main(argv=None):
     ap.add_argument("--curves", type=int, default=32)
     ap.add_argument("--samples", type=int, default=60)
     ap.add_argument("--chunks", default="8,32")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--no-loop", action="store_true", help="leave out the loop of fit")
+    ap.add_argument("--quick", action="store_true",
+                    help="8 curves, chunk 8, no loop, no file written")
     ap.add_argument("--out", default="benchmarks/results/fit_each.md")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.curves, args.chunks, args.no_loop = 8, "8", True
     curves = make_map(args.curves, args.samples)
     warnings.simplefilter("ignore")
 
-    t0 = time.perf_counter()
-    [fitting.fit(c, radius=R, progress=False) for c in curves]
-    t_cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    loop = [fitting.fit(c, radius=R, progress=False) for c in curves]
-    t_loop = time.perf_counter() - t0
-    ref = np.array([r.values for r in loop])
-    chi_ref = np.array([r.chi2 for r in loop])
-    rows = [f"| loop of `fit` | - | {t_cold:.1f} | {t_loop:.1f} | "
-            f"{args.curves / t_loop:.2f} | 1 | - | - |"]
-    print(rows[-1], flush=True)
+    rows, ref, chi_ref, t_loop = [], None, None, None
+    if not args.no_loop:
+        t0 = time.perf_counter()
+        [fitting.fit(c, radius=R, progress=False) for c in curves]
+        t_cold = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        loop = [fitting.fit(c, radius=R, progress=False) for c in curves]
+        t_loop = time.perf_counter() - t0
+        ref = np.array([r.values for r in loop])
+        chi_ref = np.array([r.chi2 for r in loop])
+        rows.append(f"| loop of `fit` | - | {t_cold:.1f} | {t_loop:.1f} | "
+                    f"{args.curves / t_loop:.2f} | | | | 1 | - | - |")
+        print(rows[-1], flush=True)
     for chunk in (int(c) for c in args.chunks.split(",")):
         t0 = time.perf_counter()
         fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
         cold = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        res = fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
-        warm = time.perf_counter() - t0
-        diff = float(np.max(np.abs(res.values() / ref - 1)))
+        warm, stages = [], []
+        for _ in range(max(1, args.repeats)):
+            t0 = time.perf_counter()
+            res = fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
+            warm.append(time.perf_counter() - t0)
+            stages.append(res.timings)
+        w = statistics.median(warm)
+        ms = {k: 1e3 * statistics.median(t[k] for t in stages) / args.curves
+              for k in ("prepare", "optimise", "finish")}
         chi = np.array([r.chi2 for r in res.results])
-        lower = int(np.sum(chi <= chi_ref * (1 + 1e-9)))
-        rows.append(f"| `fit_each` | {chunk} | {cold:.1f} | {warm:.1f} | "
-                    f"{args.curves / warm:.2f} | {t_loop / warm:.2f} | {diff:.1e} | "
-                    f"{lower}/{args.curves} |")
+        if ref is not None:
+            diff = f"{float(np.max(np.abs(res.values() / ref - 1))):.1e}"
+            lower = f"{int(np.sum(chi <= chi_ref * (1 + 1e-9)))}/{args.curves}"
+            ratio = f"{t_loop / w:.2f}"
+        else:
+            diff = lower = ratio = "-"
+        rows.append(f"| `fit_each` | {chunk} | {cold:.1f} | {w:.2f} | {args.curves / w:.2f} | "
+                    f"{ms['prepare']:.1f} | {ms['optimise']:.1f} | {ms['finish']:.1f} | "
+                    f"{ratio} | {diff} | {lower} |")
         print(rows[-1], flush=True)
+        print(f"  chi2 sum {float(np.sum(chi)):.12g}", flush=True)
     head = [
         "# Force-map fits: `fitting.fit_each` against a loop of `fitting.fit`",
         "",
@@ -95,17 +120,21 @@ def main(argv=None):
         f"search ({fitting.DEFAULT_STARTS} starts, up to {fitting.DEFAULT_LOCAL_ROUNDS} "
         f"local rounds); `python benchmarks/bench_fit_each.py {' '.join(sys.argv[1:])}`.",
         "",
-        "Times in s. *cold*: the first call (compilation included); *warm*: the second; "
-        "ratio: the loop's warm time over the warm `fit_each` time; *max rel. diff.*: "
-        "largest relative difference of a fitted value from the loop's; *χ² ≤ loop*: curves "
-        "whose χ² is at most the loop's (a chunk runs its local rounds while any of its "
-        "curves improves, so a curve may get more rounds than alone).",
+        "Times in s. *cold*: the first call (compilation included); *warm*: median of the "
+        "repeats; *prepare*, *optimise*, *finish*: the warm stages in ms a curve; ratio: the "
+        "loop's warm time over the warm `fit_each` time; *max rel. diff.*: largest relative "
+        "difference of a fitted value from the loop's; *χ² ≤ loop*: curves whose χ² is at "
+        "most the loop's (a chunk runs its local rounds while any of its curves improves, so "
+        "a curve may get more rounds than alone).",
         "",
-        "| method | chunk | cold [s] | warm [s] | curves/s (warm) | ratio | max rel. diff. | "
-        "χ² ≤ loop |",
-        "|---|---|---|---|---|---|---|---|",
+        "| method | chunk | cold [s] | warm [s] | curves/s (warm) | prepare [ms] | "
+        "optimise [ms] | finish [ms] | ratio | max rel. diff. | χ² ≤ loop |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    write_table(args.out, head + rows)
+    if args.quick:
+        print("\n".join(head + rows))
+    else:
+        write_table(args.out, head + rows)
 
 
 if __name__ == "__main__":

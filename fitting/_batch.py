@@ -34,6 +34,7 @@ import time
 from collections.abc import Mapping, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import jaxcontact as jc
@@ -44,9 +45,11 @@ from ._io_afm import FailedCurve
 from ._optimise import (
     DEFAULT_LOCAL_ROUNDS,
     _best_loss,
+    _compile_in_background,
     _finish,
     _improved,
     _merge,
+    _model_at,
     _options,
     _problem,
     solve_batch,
@@ -284,7 +287,7 @@ def fit_each(
                 continue
             try:
                 problems[i] = _problem([items[i]], rheology=rh, previous=previous.get(i),
-                                       **opts)
+                                       host=True, **opts)
             except (ValueError, ArithmeticError) as exc:
                 errors[i] = _message(exc)
         timings["prepare"] += time.perf_counter() - t0
@@ -297,8 +300,13 @@ def fit_each(
         for i in idx:  # one shape for all: padded samples, equal numbers of starts
             pb = problems[i]
             zs = np.concatenate([pb.zs, np.repeat(pb.zs[:1], n_z - len(pb.zs), axis=0)])
-            problems[i] = dataclasses.replace(pb, data=stack_batches([pb.data], length),
+            problems[i] = dataclasses.replace(pb, data=stack_batches([pb.data], length,
+                                                                   host=True),
                                               zs=zs)
+        pb0 = problems[idx[0]]  # the finish's forward model compiles during the search
+        model_at = _compile_in_background(
+            _model_at, pb0.spec, pb0.param, jnp.asarray(pb0.param.internal_host(pb0.zs[0])),
+            pb0.data)
         size = min(chunk, len(idx))
         lanes = workers if workers is not None else min(64, size * n_z)
         for c0 in range(0, len(idx), size):
@@ -325,6 +333,7 @@ def fit_each(
                     if not r.done:              # end points (the same as fit alone)
                         outs[j] = _merge(outs[j], new[j])
                         r.update(_improved(outs[j][1], before[j]))
+            model_at.join()
             timings["optimise"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             for j, i in enumerate(part):

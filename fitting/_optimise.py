@@ -46,6 +46,7 @@ import dataclasses
 import functools
 import math
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -220,6 +221,23 @@ def _model_at(spec, param, u, data):
     _, f0 = offsets(spec, p)
     point = jnp.where(jnp.isfinite(sol.force), sol.force, 0.0) + f0
     return sol, point, effective_force(sol, data) + f0
+
+
+def _compile_in_background(fn, *args) -> threading.Thread:
+    """Call the jitted `fn(*args)` once in a thread, so that its compilation (XLA compiles
+    outside the GIL) overlaps the search's; a later call with equally shaped arguments
+    finds it compiled. Join the thread before that call. An error is left for that call
+    to raise."""
+
+    def run():
+        try:
+            jax.block_until_ready(fn(*args))
+        except Exception:  # noqa: BLE001 - the real call reports it
+            pass
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
 
 
 class _Progress:
@@ -412,14 +430,15 @@ class _Problem:
 
 def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
              contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
-             indentation_range=None, **_) -> _Problem:
+             indentation_range=None, host=False, **_) -> _Problem:
     spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
     check_contact_signal(curves, spec)
     data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
-                          max_samples=max_samples, indentation_range=indentation_range)
+                          max_samples=max_samples, indentation_range=indentation_range,
+                          host=host)
     scales = data_scales(curves, spec, profile)
     guess = initial_guess(curves, spec, profile, scales)
     guess.update(normalise_names(initial, names, "initial"))
@@ -431,8 +450,8 @@ def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixe
     starts = [guess] + search_starts(spec, scales, n_starts - 1, seed=seed)
     if previous is not None:
         starts += nested_starts(spec, previous.spec, previous.as_dict(), scales)
-    zs = np.stack([param.z_of(param.to_internal([s.get(n, guess[n]) for n in names]))
-                   for s in starts])
+    zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
+                                       for s in starts]))
     return _Problem(spec, info, names, param, data, zs)
 
 
@@ -462,6 +481,9 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
     timings["prepare"] = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
+    # the forward model at the optimum (`_finish`) compiles while the search runs
+    model_at = _compile_in_background(_model_at, pb.spec, pb.param,
+                                      jnp.asarray(pb.param.internal_host(pb.zs[0])), pb.data)
     solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8,
                      int(opts["max_steps"]))
 
@@ -480,6 +502,7 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
         rounds.update(_improved(out[1], best))
         if rounds.done:
             break
+    model_at.join()
     timings["optimise"] = time.perf_counter() - t0
     return _finish(pb, curves, opts["profile"], out, opts["optimiser"], show=show,
                    warn=warn, timings=timings, t_start=t_start, max_steps=opts["max_steps"])
@@ -495,9 +518,8 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
     finite = np.isfinite(chi2_all)
     best = int(np.argmin(np.where(finite, chi2_all, np.inf)))
     z = z_all[best]
-    u = np.asarray(param.internal(jnp.asarray(z)))
-    dudz = np.asarray(jnp.diagonal(jax.jacfwd(lambda zz: param.internal(zz)[
-        jnp.asarray(param.free)])(jnp.asarray(z))))
+    u = param.internal_host(z)
+    dudz = param.dinternal_dz(z)
     if len(out) > 4 and np.all(np.abs(dudz) > 1e-8):
         r, J = np.asarray(out[4][best]), np.asarray(out[5][best]) / dudz[None, :]
     else:
@@ -511,7 +533,7 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
     timings["optimise"] = timings.get("optimise", 0.0) + time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    p = np.asarray(param.to_natural(jnp.asarray(u)))
+    p = param.to_natural_host(u)
     no_jump = not np.any(np.asarray(data.detaches) > 0)
     unc = gauss_newton(param, u, r, J, names, n_data=data.n_measured,
                        weights=np.asarray(data.weight).ravel(), no_detachment=no_jump,

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+from scipy import special
 
 from jaxcontact._validate import plain
 
@@ -52,21 +53,50 @@ class Parameterisation(eqx.Module):
     lower: Float[Array, " p"]
     upper: Float[Array, " p"]
 
+    def _internal(self, xp, z):
+        # one transform for jax.numpy (traced, differentiable) and numpy (host: no
+        # dispatch of eager device operations, ~0.1 ms each, per start and per curve)
+        idx = list(self.free)
+        reference = xp.asarray(self.reference)
+        ref = reference[xp.asarray(idx)]
+        lo = xp.asarray(self.lower)[xp.asarray(idx)]
+        hi = xp.asarray(self.upper)[xp.asarray(idx)]
+        bounded = xp.isfinite(lo) & xp.isfinite(hi)
+        lo_s = xp.where(bounded, lo, 0.0)
+        hi_s = xp.where(bounded, hi, 1.0)
+        sig = jax.nn.sigmoid(z) if xp is jnp else special.expit(z)  # the logistic
+        return bounded, lo_s, hi_s, sig, xp.where(bounded, lo_s + (hi_s - lo_s) * sig, ref + z)
+
     def internal(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
-        """Internal coordinates $u$ of all parameters at the free vector `z`."""
-        idx = jnp.asarray(self.free, dtype=int)
-        ref = self.reference[idx]
-        lo, hi = self.lower[idx], self.upper[idx]
-        bounded = jnp.isfinite(lo) & jnp.isfinite(hi)
-        lo_s = jnp.where(bounded, lo, 0.0)
-        hi_s = jnp.where(bounded, hi, 1.0)
-        val = jnp.where(bounded, lo_s + (hi_s - lo_s) * jax.nn.sigmoid(z), ref + z)
-        return self.reference.at[idx].set(val)
+        """Internal coordinates $u$ of all parameters at the free vector `z` (traceable)."""
+        val = self._internal(jnp, z)[-1]
+        return self.reference.at[jnp.asarray(self.free, dtype=int)].set(val)
+
+    def internal_host(self, z) -> np.ndarray:
+        """:meth:`internal` in numpy on the host (`z`: shape `(k,)` or `(..., k)`)."""
+        z = np.asarray(z, dtype=float)
+        val = self._internal(np, z)[-1]
+        out = np.broadcast_to(np.asarray(self.reference), z.shape[:-1] + (len(self.log),))
+        out = out.copy()
+        out[..., list(self.free)] = val
+        return out
+
+    def dinternal_dz(self, z) -> np.ndarray:
+        r"""$\mathrm du_i/\mathrm dz_i$ of the free parameters at `z` (numpy, shape of
+        `z`): $(h - l)\,\sigma(z)(1 - \sigma(z))$ when bounded, 1 otherwise."""
+        bounded, lo, hi, sig, _ = self._internal(np, np.asarray(z, dtype=float))
+        return np.where(bounded, (hi - lo) * sig * (1.0 - sig), 1.0)
 
     def to_natural(self, u: Float[Array, " p"]) -> Float[Array, " p"]:
         """Natural parameters of internal coordinates `u`."""
         is_log = jnp.asarray(self.log)
         return jnp.where(is_log, jnp.exp(jnp.where(is_log, u, 0.0)), u * self.scale)
+
+    def to_natural_host(self, u) -> np.ndarray:
+        """:meth:`to_natural` in numpy on the host."""
+        u = np.asarray(u, dtype=float)
+        is_log = np.asarray(self.log)
+        return np.where(is_log, np.exp(np.where(is_log, u, 0.0)), u * np.asarray(self.scale))
 
     def natural(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
         """Natural parameters at the free vector `z`."""
@@ -87,12 +117,13 @@ class Parameterisation(eqx.Module):
                         np.asarray(self.scale))
 
     def z_of(self, u) -> np.ndarray:
-        """Free vector of internal coordinates `u` (clipped strictly inside the bounds)."""
+        """Free vector of internal coordinates `u` (clipped strictly inside the bounds;
+        `u`: shape `(p,)` or `(..., p)`)."""
         u = np.asarray(u, dtype=float)
         idx = list(self.free)
         ref = np.asarray(self.reference)[idx]
         lo, hi = np.asarray(self.lower)[idx], np.asarray(self.upper)[idx]
-        th = u[idx]
+        th = u[..., idx]
         bounded = np.isfinite(lo) & np.isfinite(hi)
         out = th - ref
         if np.any(bounded):

@@ -272,6 +272,7 @@ def prepare_curves(
     spring_constant: float | Sequence[float] | None = None,
     max_samples: int | None = None,
     indentation_range: tuple[float, float] | None = None,
+    host: bool = False,
 ) -> CurveBatch:
     """Select and subsample the samples, estimate the noise, pad into a `CurveBatch`.
 
@@ -281,7 +282,8 @@ def prepare_curves(
     curves' own). `indentation_range`: ``(low, high)`` [m] (like nanite's ``range_x``):
     only samples whose indentation lies in it are residuals (the others keep weight 0:
     the model still runs through the whole history, and they are shown, not fitted);
-    None: every selected sample.
+    None: every selected sample. `host`: keep the arrays in numpy (for batches stacked
+    later, e.g. by :func:`fitting.fit_each`: one transfer to the device per chunk).
     """
     rng = check_indentation_range(indentation_range)
     if isinstance(curves, Curve):
@@ -293,9 +295,7 @@ def prepare_curves(
         if radius is None or not (math.isfinite(float(radius)) and float(radius) > 0):
             raise ValueError(f"radius must be finite and > 0 [m]; got {plain(radius)}")
         profile = jc.Parabola(float(radius))
-    # the probe's parameters against the forward model's domain and unit plausibility
-    # (eager `ValueError` naming the parameter; the traced model does not check them)
-    jc.profile_radius(profile, 1e-9)
+    _check_profile(profile)
     budget = DEFAULT_MAX_SAMPLES[spec.model] if max_samples is None else int(max_samples)
     if budget < 4:
         raise ValueError(f"max_samples must be an integer >= 4; got {plain(max_samples)}")
@@ -381,7 +381,22 @@ def prepare_curves(
         # subsampled: pad to the budget, so curves of any length share one shape (and one
         # compilation of the fit)
         n_max = max(n_max, budget)
-    return _stack_rows(rows, n_max, profile)
+    return _stack_rows(rows, n_max, profile, host)
+
+
+_CHECKED: dict[int, jc.AbstractProfile] = {}
+
+
+def _check_profile(profile) -> None:
+    """The probe's parameters against the forward model's domain and unit plausibility
+    (eager `ValueError` naming the parameter; the traced model does not check them). A few
+    ms of eager operations: done once per profile object (a map shares one)."""
+    if _CHECKED.get(id(profile)) is profile:
+        return
+    jc.profile_radius(profile, 1e-9)
+    if len(_CHECKED) > 16:
+        _CHECKED.clear()
+    _CHECKED[id(profile)] = profile  # held, so that its id is not reused
 
 
 _ROW_KEYS = ("ts", "drive", "indentation", "force", "lower", "upper", "segment", "index",
@@ -389,10 +404,10 @@ _ROW_KEYS = ("ts", "drive", "indentation", "force", "lower", "upper", "segment",
 _CURVE_KEYS = ("sigma", "depth", "detaches", "stiffness")
 
 
-def _stack_rows(rows, n_max: int, profile) -> CurveBatch:
+def _stack_rows(rows, n_max: int, profile, host: bool = False) -> CurveBatch:
     """A `CurveBatch` of per-curve rows (dicts of sample arrays and scalars), every curve
     padded to `n_max` samples: the last sample repeated with weight 0, not valid, not in
-    contact, with a zero-width interval."""
+    contact, with a zero-width interval. `host`: numpy arrays, else on the device."""
 
     def pad(a):
         a = np.asarray(a)
@@ -405,15 +420,17 @@ def _stack_rows(rows, n_max: int, profile) -> CurveBatch:
     stack["lower"] = np.where(valid > 0, stack["lower"], stack["ts"])
     stack["upper"] = np.where(valid > 0, stack["upper"], stack["ts"])
     scal = {key: np.array([r[key] for r in rows], dtype=float) for key in _CURVE_KEYS}
-    # one transfer of all arrays (a `jnp.asarray` each costs ~30 µs of dispatch)
-    arrays = jax.device_put(dict(stack, valid=valid, **scal))
+    arrays = dict(stack, valid=valid, **scal)
+    if not host:  # one transfer of all arrays (a `jnp.asarray` each costs ~30 µs)
+        arrays = jax.device_put(arrays)
     return CurveBatch(**arrays, profile=profile)
 
 
-def stack_batches(batches: Sequence[CurveBatch], length: int | None = None) -> CurveBatch:
+def stack_batches(batches: Sequence[CurveBatch], length: int | None = None, *,
+                  host: bool = False) -> CurveBatch:
     """One `CurveBatch` of the curves of `batches` (same profile), padded to a common
     number of samples: the longest one, or `length` if that is larger (the shape of a
-    compiled fit)."""
+    compiled fit). `host`: numpy arrays, else on the device."""
     batches = list(batches)
     if not batches:
         raise ValueError("batches: give at least one CurveBatch")
@@ -425,4 +442,4 @@ def stack_batches(batches: Sequence[CurveBatch], length: int | None = None) -> C
             rows.append({**{k: arr[k][c, :m] for k in _ROW_KEYS},
                          **{k: float(arr[k][c]) for k in _CURVE_KEYS}})
     n_max = max([len(r["ts"]) for r in rows] + [int(length or 0)])
-    return _stack_rows(rows, n_max, batches[0].profile)
+    return _stack_rows(rows, n_max, batches[0].profile, host)

@@ -220,18 +220,20 @@ def latin_hypercube(n: int, dim: int, *, seed: int = 0, designs: int = 20) -> np
     """`n` points in $[0, 1)^\\mathrm{dim}$: the best of `designs` Latin hypercubes by the
     smallest distance between two points (deterministic for a given seed)."""
     rng = np.random.default_rng(seed)
-    best, best_d = None, -1.0
-    for _ in range(max(1, designs)):
-        u = (np.argsort(rng.random((dim, n)), axis=1).T + rng.random((n, dim))) / n
-        if n > 1:
-            diff = u[:, None, :] - u[None, :, :]
-            dist = np.sqrt(np.sum(diff * diff, axis=-1))
-            d = float(np.min(dist[np.triu_indices(n, 1)]))
-        else:
-            d = 0.0
-        if d > best_d:
-            best, best_d = u, d
-    return best
+    k = max(1, designs)
+    # the random numbers in the order of one design after the other (a permutation key of
+    # shape (dim, n), then a jitter of shape (n, dim)), all drawn at once
+    draws = rng.random(k * 2 * dim * n).reshape(k, 2, dim * n)
+    keys = draws[:, 0].reshape(k, dim, n)
+    jitter = draws[:, 1].reshape(k, n, dim)
+    u = (np.swapaxes(np.argsort(keys, axis=2), 1, 2) + jitter) / n
+    if n < 2:
+        return u[0]
+    diff = u[:, :, None, :] - u[:, None, :, :]
+    dist = np.sqrt(np.sum(diff * diff, axis=-1))
+    iu = np.triu_indices(n, 1)
+    d = np.min(dist[:, iu[0], iu[1]], axis=1)
+    return u[int(np.argmax(d))]  # the first of equally good designs
 
 
 #: Half-widths of the local rounds: in the logarithm of positive parameters, and in units
@@ -299,12 +301,13 @@ def local_starts(param, z_end: np.ndarray, chi2: np.ndarray, n: int, *, seed: in
     free = list(param.free)
     lower, upper = np.asarray(param.lower), np.asarray(param.upper)
     width = widen * np.where(np.asarray(param.log)[free], LOCAL_LOG_WIDTH, LOCAL_LINEAR_WIDTH)
-    u0 = np.asarray(param.internal(best))
+    u0 = param.internal_host(best)
     m = max(n - len(out), 0)
-    for row in latin_hypercube(m, len(free), seed=seed) * 2.0 - 1.0 if m else []:
-        u = u0.copy()
-        u[free] = np.clip(u0[free] + width * row, lower[free], upper[free])
-        out.append(param.z_of(u))
+    if m:
+        u = np.repeat(u0[None], m, axis=0)
+        rows = latin_hypercube(m, len(free), seed=seed) * 2.0 - 1.0
+        u[:, free] = np.clip(u0[free] + width * rows, lower[free], upper[free])
+        out.extend(param.z_of(u))
     return np.stack(out[:n])
 
 

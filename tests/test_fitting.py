@@ -613,3 +613,51 @@ def test_young_moduli_and_relaxed_modulus_with_errors(noisy, noisy_fit, tmp_path
         rows = {r["parameter"]: r for r in csv.DictReader(fh)}
     assert rows["E1"]["derived"] == "True" and float(rows["E1"]["value"]) == pytest.approx(
         3 * noisy_fit["G1"])
+
+
+def test_host_transforms_match_the_traced_ones():
+    # the numpy copies of the free-vector map (starts, finish) against the traced map and
+    # its forward-mode derivative; z beyond +-40 saturates the logistic
+    import jax
+
+    info = fitting.parameter_info(make_spec("relaxed", "standard", contact_offset=True))
+    names = [n for n, _, _ in info]
+    ref = {"G0": 1e4, "G1": 5e3, "eta1": 7e3, "work_of_adhesion": 1e-3,
+           "contact_offset": 1e-7}
+    param = fitting.make_parameterisation(info, ref, fixed={"G1": 5e3},
+                                          bounds={"G0": (1e2, 1e6), "contact_offset":
+                                                  (-1e-6, 5e-7)},
+                                          scales={"contact_offset": 1e-6})
+    rng = np.random.default_rng(1)
+    zs = np.r_[rng.normal(0, 3, (5, len(param.free))), [[40.0, -45.0, 0.1, 50.0]]]
+    for z in zs:
+        u = np.asarray(param.internal(jnp.asarray(z)))
+        np.testing.assert_allclose(param.internal_host(z), u, rtol=1e-14, atol=1e-300)
+        np.testing.assert_allclose(param.to_natural_host(u),
+                                   np.asarray(param.to_natural(jnp.asarray(u))), rtol=1e-14)
+        jac = jax.jacfwd(lambda zz: param.internal(zz)[jnp.asarray(param.free)])(
+            jnp.asarray(z))
+        np.testing.assert_allclose(param.dinternal_dz(z), np.diagonal(np.asarray(jac)),
+                                   rtol=1e-12, atol=1e-300)
+    us = param.internal_host(zs)
+    np.testing.assert_array_equal(param.z_of(us), np.stack([param.z_of(u) for u in us]))
+    assert len(names) == us.shape[1]
+
+
+def test_host_prepared_batch_equals_the_device_one_and_bad_probes_always_raise(noisy):
+    # fit_each prepares in numpy and transfers once a chunk: the same arrays; the probe's
+    # check is remembered per profile object only when it passed
+    import jax
+
+    spec = make_spec("relaxed", "standard")
+    dev = prepare_curves(noisy, spec, radius=R)
+    host = prepare_curves(noisy, spec, radius=R, host=True)
+    assert isinstance(host.force, np.ndarray)
+    for a, b in zip(jax.tree.leaves(dev), jax.tree.leaves(host), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), b)
+    stacked = fitting.stack_batches([host, host], 70, host=True)
+    assert stacked.ts.shape == (2 * len(noisy), 70) and isinstance(stacked.ts, np.ndarray)
+    bad = jc.Parabola(40.0)  # 40 m: not a probe radius
+    for _ in range(2):
+        with pytest.raises(ValueError, match="R"):
+            prepare_curves(noisy, spec, profile=bad)

@@ -371,6 +371,27 @@ def test_history_after_long_hold_is_relaxed(history, relaxed):
 # ---------------------------------------------------------------------------------------
 
 
+def test_history_separation_work_within_tolerance_or_undersampled():
+    # the history's separation work after a long hold against the relaxed start's exact one:
+    # at 100 samples each point's work is within the model's work_rtol of it, or withheld as
+    # `undersampled` (depth = R: the tension spans a few lift samples); never a wrong number
+    # with status OK
+    g = dict(G0=1e6, G1=2e5, eta1=1e4, work_of_adhesion=0.05, R=1e-4,
+             depth=np.array([3e-6, 1e-4]), velocity=1e-6)
+    exact = jc.sweep(g, model=jc.RelaxedStart(), progress=False)
+    assert (exact.separation_work_status == 0).all()
+    assert (exact.separation_work_error_J == 0).all()
+    model = jc.ApproachHoldLift(samples=100, cells=16)
+    ds = jc.sweep(dict(g, hold=50.0), model=model, progress=False)
+    assert (ds.status == int(jc.RESULTS.detached._value)).all()
+    assert list(ds.separation_work_status.values) == [0, 1]  # converged, undersampled
+    w, ref = ds.separation_work_J.values, exact.separation_work_J.values
+    assert abs(w[0] / ref[0] - 1) <= model.work_rtol
+    assert np.isnan(w[1])
+    # the estimate is not far below the true error where it is given
+    assert abs(w[0] - ref[0]) <= 3 * ds.separation_work_error_J.values[0]
+
+
 def test_float32_against_float64():
     # physical scales from an AFM cell measurement (nN, 100 nm) to a mm gel contact
     grid = dict(G0=np.array([1e3, 1e9]), G1=1e5, eta1=1e4, work_of_adhesion=np.array([1e-4, 0.1]),

@@ -10,7 +10,7 @@ import numpy as np
 from .._solution import RESULTS
 from .._validate import PLAUSIBLE, check_plausible, plausibility_enabled
 from .._version import __version__
-from ._models import AbstractSweepModel, RelaxedStart
+from ._models import _MIN_TENSION_SAMPLES, AbstractSweepModel, RelaxedStart
 from ._parameters import INVALID_REASONS, parameter_info, parse_spec, range_text, scale_factors
 from ._run import SUMMARY_FIELDS, default_precision, run_points
 
@@ -159,7 +159,11 @@ def sweep(
     the start of the lift to the jump-off), `lift_duration_s` and `status` (the `RESULTS`
     code of the point as int8, the codes in its `flag_values` / `flag_meanings`: a failed
     point has an error status and NaN summaries, and never affects the others; a point that
-    did not detach within its lift is `in_contact` with NaN jump-off values). Signs: force
+    did not detach within its lift is `in_contact` with NaN jump-off values),
+    `separation_work_error_J` (its estimated sampling error: 0 for the exact relaxed start,
+    from every sample against every other one for the history) and
+    `separation_work_status` (0 `converged`: within the model's `work_rtol`; 1
+    `undersampled`: beyond it, the work is then NaN; 2 `none`: no work). Signs: force
     compressive positive, adhesive negative; indentation positive into the sample. Save it
     with `ds.to_netcdf("sweep.nc", engine="h5netcdf")`.
 
@@ -278,6 +282,28 @@ def sweep(
             x[failed] = np.nan
         data[var] = (dims, x.reshape(spec.shape), dict(units=_UNITS[kind], long_name=meaning))
     data["status"] = (dims, status.reshape(spec.shape), _status_attrs())
+    # the separation work's sampling error (the history model; 0 for the exact relaxed start)
+    work = data["separation_work_J"][1]
+    error = packed[row["separation_work_error"]].astype(np.float64) * np.abs(units["work"])
+    error = error.reshape(spec.shape)
+    rtol = float(model.work_rtol)
+    with np.errstate(invalid="ignore"):
+        converged = error <= rtol * np.abs(work)
+    work_status = np.where(np.isfinite(work), np.where(converged, 0, 1), 2).astype(np.int8)
+    work[work_status == 1] = np.nan  # a work the samples cannot give within `work_rtol`
+    error[failed.reshape(spec.shape)] = np.nan
+    data["separation_work_error_J"] = (dims, error, dict(
+        units="J", long_name="estimated sampling error of separation_work_J (before it is "
+        "withheld): |W(h) - W(2h)| / (2^1.5 - 1) from every sample and every other one; inf "
+        f"with fewer than {_MIN_TENSION_SAMPLES} lift samples under tension; 0 for the exact "
+        "relaxed start"))
+    data["separation_work_status"] = (dims, work_status, dict(
+        long_name="whether separation_work_J is within the model's work_rtol",
+        work_rtol=rtol, flag_values=np.array([0, 1, 2], np.int8),
+        flag_meanings="converged undersampled none",
+        description="undersampled: the estimated sampling error exceeds work_rtol times the "
+                    "work, which is then NaN (more `samples` fix it); none: no work (an error "
+                    "status or no jump-off)"))
     if bad_param is not None:
         names_flagged = list(flags)
         data["invalid_parameter"] = (dims, bad_param.reshape(spec.shape), dict(

@@ -128,8 +128,11 @@ def sweep(
       `contact_radius_m`, with a last dimension `sample`).
     - `precision`: `"float32"` or `"float64"`; default float32 on accelerators, float64 on the
       CPU. Every point is computed in its own units (depth, lift speed and relaxed modulus
-      are 1), so float32 keeps its relative accuracy at any physical scale (the measured
-      float32 error is in the README and `benchmarks/results/sweep.md`).
+      are 1), so float32 keeps its relative accuracy at any physical scale: the relaxed
+      start's summaries within 2e-6 of float64; the full history's forces within 1e-2 at
+      the 99th percentile, rare curves up to 3e-2 (`simulate`'s event refinement; measured
+      2.8e-2 on a GPU; `benchmarks/results/sweep.md` §7): float64 where every curve must be
+      within 1e-2.
     - `chunk_size`: curves per compiled call (rounded up to a multiple of the number of
       devices); default from `memory_limit`.
     - `memory_limit`: bytes per device a chunk may use (default: half the device memory where

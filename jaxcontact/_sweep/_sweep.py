@@ -166,7 +166,8 @@ def sweep(
     `separation_work_error_J` (its estimated sampling error: 0 for the exact relaxed start,
     from every sample against every other one for the history) and
     `separation_work_status` (0 `converged`: within the model's `work_rtol`; 1
-    `undersampled`: beyond it, the work is then NaN; 2 `none`: no work). Signs: force
+    `undersampled`: beyond it, the work is then NaN; 2 `none`: no work, NaN: an error
+    status or no jump-off within the lift). Signs: force
     compressive positive, adhesive negative; indentation positive into the sample. Save it
     with `ds.to_netcdf("sweep.nc", engine="h5netcdf")`.
 
@@ -292,8 +293,11 @@ def sweep(
     rtol = float(model.work_rtol)
     with np.errstate(invalid="ignore"):
         converged = error <= rtol * np.abs(work)
-    work_status = np.where(np.isfinite(work), np.where(converged, 0, 1), 2).astype(np.int8)
-    work[work_status == 1] = np.nan  # a work the samples cannot give within `work_rtol`
+    # none where there is no work or no estimate (no jump-off within the lift: the work
+    # would stop short of it)
+    has_work = np.isfinite(work) & ~np.isnan(error)
+    work_status = np.where(has_work, np.where(converged, 0, 1), 2).astype(np.int8)
+    work[work_status != 0] = np.nan  # a work the samples cannot give within `work_rtol`
     error[failed.reshape(spec.shape)] = np.nan
     data["separation_work_error_J"] = (dims, error, dict(
         units="J", long_name="estimated sampling error of separation_work_J (before it is "
@@ -305,8 +309,8 @@ def sweep(
         work_rtol=rtol, flag_values=np.array([0, 1, 2], np.int8),
         flag_meanings="converged undersampled none",
         description="undersampled: the estimated sampling error exceeds work_rtol times the "
-                    "work, which is then NaN (more `samples` fix it); none: no work (an error "
-                    "status or no jump-off)"))
+                    "work, which is then NaN (more `samples` fix it); none: no work, NaN (an "
+                    "error status, or no jump-off within the lift)"))
     if bad_param is not None:
         names_flagged = list(flags)
         data["invalid_parameter"] = (dims, bad_param.reshape(spec.shape), dict(

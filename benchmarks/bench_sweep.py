@@ -172,6 +172,55 @@ def devices_overhead(samples, n=10_000):
     return res
 
 
+COMPARE_CHILD = """
+import json, statistics, sys, time
+sys.path.insert(0, {here!r})
+import jaxcontact as jc
+from bench_sweep import points
+m = jc.RelaxedStart(samples={samples})
+out = {{}}
+for b in {batches!r}:
+    pts = points(b)
+    jc.sweep(points=pts, model=m, progress=False)
+    t = []
+    for _ in range(max(1, {repeats} if b <= 10_000 else 3 if b <= 100_000 else 1)):
+        t0 = time.perf_counter(); jc.sweep(points=pts, model=m, progress=False)
+        t.append(time.perf_counter() - t0)
+    out[b] = statistics.median(t)
+print(json.dumps(out))
+"""
+
+
+def compare(old_root, samples, batches, rounds=2, repeats=5):
+    """Relaxed summaries of this checkout against another (`old_root`, e.g. `git archive` of
+    the commit before) in child processes, alternating (old, new) `rounds` times; the numpy
+    baseline in this process in between. Medians."""
+    new_root = os.path.dirname(HERE)
+    times = {"old": {b: [] for b in batches}, "new": {b: [] for b in batches}}
+    tn = {b: [] for b in batches}
+    for _ in range(rounds):
+        for label, root in (("old", old_root), ("new", new_root)):
+            env = dict(os.environ, PYTHONPATH=root)
+            code = COMPARE_CHILD.format(here=os.path.join(root, "benchmarks"), samples=samples,
+                                        batches=list(batches), repeats=repeats)
+            out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                                 text=True, check=True, cwd=root)
+            for b, t in json.loads(out.stdout.strip().splitlines()[-1]).items():
+                times[label][int(b)].append(t)
+        for b in batches:
+            if b <= 100_000:
+                pts = points(b)
+                tn[b].append(timed(lambda p=pts: numpy_chunked(p, samples)))
+    print("\n| curves | before [s] | before curves/s | after [s] | after curves/s | after/before "
+          "speed | numpy [s] | after / numpy |\n| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for b in batches:
+        to, tw = statistics.median(times["old"][b]), statistics.median(times["new"][b])
+        n = statistics.median(tn[b]) if tn[b] else float("nan")
+        print(f"| {b:,} | {to:.4g} | {b / to:.3g} | {tw:.4g} | {b / tw:.3g} | {to / tw:.2f} | "
+              f"{n:.4g} | {n / tw:.1f}x |", flush=True)
+    return times, tn
+
+
 def relative(a, b):
     ok = np.isfinite(a) & np.isfinite(b) & (b != 0)
     return np.abs(a[ok] / b[ok] - 1)
@@ -219,8 +268,17 @@ def main():
     ap.add_argument("--samples", type=int, default=256)
     ap.add_argument("--max-batch", type=int, default=1_000_000)
     ap.add_argument("--skip", default="", help="comma list of: batch,memory,devices,float32")
+    ap.add_argument("--quick", action="store_true",
+                    help="batches up to 10^5, no memory or devices sections, a small float32 "
+                         "table")
+    ap.add_argument("--compare", metavar="DIR", default=None,
+                    help="also time the relaxed summaries of another checkout (e.g. `git "
+                         "archive` of the previous commit unpacked in DIR) against this one")
     args = ap.parse_args()
     skip = set(args.skip.split(","))
+    if args.quick:
+        args.max_batch = min(args.max_batch, 100_000)
+        skip |= {"memory", "devices"}
     import jax
 
     print(f"devices: {jax.devices()}; jaxcontact {jc.__version__}; jax {jax.__version__}")
@@ -241,9 +299,15 @@ def main():
         print("\n| batch | 1 device | 2 devices (ratio) | 4 devices (ratio) |\n"
               "| --- | --- | --- | --- |")
         devices_overhead(args.samples)
+    if args.compare:
+        batches = [b for b in (1_000, 10_000, 100_000, 1_000_000) if b <= args.max_batch]
+        compare(os.path.abspath(args.compare), args.samples, batches)
     if "float32" not in skip:
         print("\n| model | summary | median | 99th pct | max |\n| --- | --- | --- | --- | --- |")
-        float32_table()
+        if args.quick:
+            float32_table(n_relaxed=1_000, n_history=64, samples=500)
+        else:
+            float32_table()
 
 
 if __name__ == "__main__":

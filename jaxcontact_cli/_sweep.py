@@ -82,6 +82,10 @@ def add_parser(sub, common) -> None:
                         "(> 1, default 1.5)")
     p.add_argument("--cells", type=int, default=64,
                    help="foundation cells of --model history (default 64)")
+    p.add_argument("--work-rtol", type=float, default=1e-2,
+                   help="--model history: the relative sampling error the separation work "
+                        "must be within (estimated from the samples), else it is written as "
+                        "NaN with separation_work_status undersampled (default 0.01)")
     p.add_argument("--precision", choices=("float32", "float64"), default=None,
                    help="default: float32 on a GPU, float64 on the CPU")
     p.add_argument("--curves", action="store_true",
@@ -188,6 +192,7 @@ def check_args(args):
         low = 8 if args.model == "history" else 2
         raise UsageError(f"argument --samples: must be an integer >= {low}; got {args.samples}")
     check_number("--duration-factor", args.duration_factor, "1", low=1.0)
+    check_number("--work-rtol", args.work_rtol, "1")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
     if args.chunk_size is not None and args.chunk_size < 1:
@@ -321,7 +326,7 @@ def run(args) -> int:
         model = jc.RelaxedStart(samples=args.samples, duration_factor=args.duration_factor)
     else:
         model = jc.ApproachHoldLift(samples=args.samples, duration_factor=args.duration_factor,
-                                    cells=args.cells)
+                                    cells=args.cells, work_rtol=args.work_rtol)
     size = int(np.prod([len(v) for v in grid.values() if isinstance(v, list)]))
     if rank == 0:
         sampled = args.curves or args.model == "history"
@@ -359,6 +364,11 @@ def run(args) -> int:
     wrote = f"{out}" + (f" and {plot}" if plot is not None else "")
     print(f"wrote {wrote}: {size:,} point(s), {size - failed - attached:,} detached, "
           f"{attached:,} still in contact, {failed:,} failed", file=sys.stderr, flush=True)
+    undersampled = int(np.sum(ds.separation_work_status.values == 1))
+    if undersampled:
+        print(f"jaxcontact sweep: warning: the separation work of {undersampled} point(s) is "
+              f"undersampled (estimated error above --work-rtol {args.work_rtol:g}; written as "
+              "NaN): use more --samples", file=sys.stderr, flush=True)
     if failed:
         print(f"jaxcontact sweep: warning: {failed} point(s) failed (their status in the file "
               "says why; their summaries are NaN)", file=sys.stderr, flush=True)

@@ -70,6 +70,7 @@ def test_parse_range():
         (["--model", "history"], "--hold"),
         (["--stiffness", "10"], "--stiffness"),
         (["--duration-factor", "1"], "--duration-factor"),
+        (["--work-rtol", "0"], "--work-rtol"),
         (["--coordinator", "localhost:1234"], "--coordinator"),
         (["--coordinator", "nohost", "--num-processes", "2", "--process-id", "0"],
          "--coordinator"),
@@ -128,3 +129,18 @@ def test_two_processes_match_one(example, tmp_path):
     for name in list(jc._sweep.SUMMARIES) + ["status"]:
         np.testing.assert_allclose(two[name].values, one[name].values, rtol=1e-13)
     assert sorted(os.listdir(tmp_path)) == ["two.nc"]  # written once, by process 0
+
+
+def test_history_undersampled_work_is_reported(tmp_path, capsys):
+    # 16 samples (10 in the lift): fewer than 8 under tension, so the separation work
+    # is withheld (NaN, status undersampled) and the command says so
+    out = tmp_path / "h.nc"
+    rc = main(["sweep", "--model", "history", "--G0", "1e6", "--G1", "2e5", "--eta1", "1e4",
+               "--work-of-adhesion", "0.05", "--radius", "1e-4", "--depth", "3e-6",
+               "--velocity", "1e-6", "--hold", "50", "--samples", "16", "--cells", "16",
+               "--no-plot", "--out", str(out)])
+    assert rc == 0
+    assert "undersampled" in capsys.readouterr().err
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    assert int(ds.separation_work_status) == 1 and np.isnan(ds.separation_work_J)
+    assert ds.separation_work_status.attrs["work_rtol"] == 0.01

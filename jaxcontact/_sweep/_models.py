@@ -61,6 +61,13 @@ edge ($F$ linear in $d$) and for the square-root shape of a front at its fold. T
 remaining error is $O(h^{3/2})$ in the sample spacing $h$ (the square-root shape of the
 front near the fold in the trapezoids before), larger where the tension occupies few
 samples; the tests measure it against the relaxed start's exact value after a long hold.
+
+*Its sampling error is estimated* from the same rule on every other sample:
+$|W_h - W_{2h}|/(2^{3/2} - 1)$ (the rule converges as $h^{3/2}$ or faster, so this bounds
+the error of $W_h$ asymptotically), infinite with fewer than 8 lift samples under tension
+(too few for the asymptotics). `sweep` returns it (`separation_work_error_J`) and withholds
+the work (NaN, `separation_work_status = undersampled`) where it exceeds the model's
+`work_rtol` (default 1 %) of the work: more `samples` fix it.
 """
 
 from __future__ import annotations
@@ -99,6 +106,7 @@ class PointResult(eqx.Module):
     separation_work: jnp.ndarray
     lift_duration: jnp.ndarray
     status: jnp.ndarray
+    separation_work_error: jnp.ndarray  # estimated absolute error of `separation_work`
     time: jnp.ndarray | None = None
     displacement: jnp.ndarray | None = None
     force: jnp.ndarray | None = None
@@ -274,10 +282,14 @@ class AbstractSweepModel(eqx.Module):
     - `samples`: samples per curve.
     - `duration_factor`: the lift lasts `duration_factor` times the bound $T_b$ of the
       jump-off time (module docstring of `jaxcontact._sweep._models`), > 1.
+    - `work_rtol`: the relative sampling error the separation work must be within (estimated
+      from the samples, module docstring); beyond it the work is withheld (NaN) and
+      `separation_work_status` is `undersampled`. Default 1e-2.
     """
 
     samples: int = eqx.field(static=True, default=2000)
     duration_factor: float = eqx.field(static=True, default=1.5)
+    work_rtol: float = eqx.field(static=True, default=1e-2)
 
     name: ClassVar[str] = ""
     required: ClassVar[tuple] = ("work_of_adhesion", "depth", "velocity")
@@ -293,6 +305,9 @@ class AbstractSweepModel(eqx.Module):
         if not factor > 1.0 or not factor < float("inf"):
             raise ValueError(f"`duration_factor` must be a finite number > 1 (the lift lasts "
                              f"that many times the bound of the jump-off time); got {factor}.")
+        rtol = float(self.work_rtol)
+        if not 0.0 < rtol < float("inf"):
+            raise ValueError(f"`work_rtol` must be a finite number > 0; got {rtol}.")
 
     @abc.abstractmethod
     def solve(self, rheology, profile, p, *, curves: bool = False) -> PointResult:
@@ -322,6 +337,10 @@ def _valid(front: _Front, T_b, p):
     return ok
 
 
+# the lift samples under tension below which the history's separation work is `undersampled`
+_MIN_TENSION_SAMPLES = 8
+
+
 def _beyond_profile(profile, dtype):
     """A point whose touch radius (g(a0) = d0 = 1 in scaled units) lies beyond what the
     profile describes (`valid_radius`: a Parabola's R); scale-free, so checked in the
@@ -338,6 +357,14 @@ def _result(sol, d, lift, lift_start, lift_duration, time, curves, valid, beyond
     detached = jnp.isfinite(sol.jumpoff_time)
     work = _separation_work(d, sol.force, attached, lift, detached, sol.jumpoff_displacement,
                             sol.jumpoff_force)
+    # its sampling error: the same rule on every other sample; the rule converges as h^(3/2)
+    # or faster, so |W_h - W_2h| / (2^(3/2) - 1) bounds the error of W_h (asymptotically)
+    coarse = _separation_work(d[::2], sol.force[::2], attached[::2], lift[::2], detached,
+                              sol.jumpoff_displacement, sol.jumpoff_force)
+    error = jnp.abs(work - coarse) / (2.0**1.5 - 1.0)
+    # fewer than `_MIN_TENSION_SAMPLES` lift samples under tension: no estimate to trust
+    tension = jnp.sum(attached & lift & (sol.force < 0))
+    error = jnp.where(tension >= _MIN_TENSION_SAMPLES, error, jnp.inf)
     out = dict(
         max_tensile_force=sol.max_tensile_force,
         jumpoff_force=sol.jumpoff_force,
@@ -347,6 +374,7 @@ def _result(sol, d, lift, lift_start, lift_duration, time, curves, valid, beyond
         separation_work=work,
         lift_duration=lift_duration,
         status=result._value.astype(jnp.int32),
+        separation_work_error=jnp.where(detached, error, jnp.nan),
     )
     if curves:
         out.update(time=time, displacement=d, force=sol.force, contact_radius=sol.contact_radius)
@@ -415,8 +443,10 @@ class RelaxedStart(AbstractSweepModel):
         bad = is_error(result)
         nan = jnp.asarray(jnp.nan, T_b.dtype)
         summaries = {k: jnp.where(bad, nan, v) for k, v in summaries.items()}
+        # the separation work is exact (quadrature error ~1e-10 relative, module docstring)
         return PointResult(**summaries, lift_duration=jnp.where(bad, nan, duration),
-                           status=result._value.astype(jnp.int32), **out)
+                           status=result._value.astype(jnp.int32),
+                           separation_work_error=jnp.where(bad, nan, 0.0), **out)
 
     def floats_per_curve(self, arms: int, curves: bool) -> int:
         # the summaries: the quadrature's nodes and the roots (XLA's compiled memory: 98

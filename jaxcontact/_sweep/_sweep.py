@@ -9,11 +9,11 @@ import numpy as np
 
 from .._solution import RESULTS
 from .._solvers import float64_scope
-from .._validate import check_plausible, plain, plausibility_enabled
+from .._validate import PLAUSIBLE, check_plausible, plain, plausibility_enabled
 from .._version import __version__
-from ._models import AbstractSweepModel, RelaxedStart
-from ._parameters import parameter_info, parse_spec, scale_factors
-from ._run import default_precision, run_points
+from ._models import _MIN_TENSION_SAMPLES, AbstractSweepModel, RelaxedStart
+from ._parameters import INVALID_REASONS, parameter_info, parse_spec, range_text, scale_factors
+from ._run import SUMMARY_FIELDS, default_precision, run_points
 
 __all__ = ["sweep", "SUMMARIES"]
 
@@ -60,6 +60,39 @@ _PLAUSIBLE_KIND = {"length": "length", "modulus": "modulus", "viscosity": "visco
                    "time": "time", "adhesion": "work_of_adhesion", "velocity": "velocity"}
 
 
+def _extremes(a):
+    """The smallest nonzero and the largest magnitude of `a` (what `check_plausible` needs to
+    accept or refuse it), in two reductions instead of its masks over every entry."""
+    a = np.abs(np.atleast_1d(a))
+    nonzero_min = np.min(a, where=a != 0, initial=np.inf)
+    return np.array([nonzero_min if np.isfinite(nonzero_min) else 0.0, a.max()])
+
+
+def _point_flags(spec, flags):
+    """Per point: the code of the first flagged parameter (1-based, in the order of `flags`;
+    0 none) and its `INVALID_REASONS` code; `(None, None)` when nothing is flagged."""
+    if not flags:
+        return None, None
+    param = np.zeros(spec.shape, np.int8)
+    reason = np.zeros(spec.shape, np.int8)
+    for k, (name, f) in enumerate(flags.items(), start=1):
+        if spec.grid:
+            axis = spec.dims.index(name)
+            f = f.reshape([-1 if i == axis else 1 for i in range(len(spec.shape))])
+        f = np.broadcast_to(f, spec.shape)
+        new = (f != 0) & (param == 0)
+        param[new] = k
+        reason[new] = f[new]
+    return param.ravel(), reason.ravel()
+
+
+def _first_problem(spec, flags) -> str:
+    name, f = next(iter(flags.items()))
+    i = int(np.flatnonzero(f)[0])
+    return (f"`{name}` must lie in {range_text(name)} and be plausible; got "
+            f"{spec.coords[name][i]!r} (entry {i}: {INVALID_REASONS[int(f[i])]}).")
+
+
 @functools.lru_cache(maxsize=32)
 def _model_repr(model) -> str:
     # equinox's pretty printer takes 0.26 ms, a fifth of a one-point sweep
@@ -77,6 +110,7 @@ def sweep(
     chunk_size: int | None = None,
     memory_limit: int | None = None,
     progress: bool = True,
+    on_error: str = "raise",
 ):
     r"""Run a forward model over a grid or a list of parameter sets.
 
@@ -96,14 +130,24 @@ def sweep(
       `contact_radius_m`, with a last dimension `sample`).
     - `precision`: `"float32"` or `"float64"`; default float32 on accelerators, float64 on the
       CPU. Every point is computed in its own units (depth, lift speed and relaxed modulus
-      are 1), so float32 keeps its relative accuracy at any physical scale (the measured
-      float32 error is in the README and `benchmarks/results/sweep.md`).
+      are 1), so float32 keeps its relative accuracy at any physical scale: the relaxed
+      start's summaries within 2e-6 of float64; the full history's forces within 1e-2 at
+      the 99th percentile, rare curves up to 3e-2 (`simulate`'s event refinement; measured
+      2.8e-2 on a GPU; `benchmarks/results/sweep.md` §7): float64 where every curve must be
+      within 1e-2.
     - `chunk_size`: curves per compiled call (rounded up to a multiple of the number of
       devices); default from `memory_limit`.
     - `memory_limit`: bytes per device a chunk may use (default: half the device memory where
       the backend reports it, else the model's `cpu_chunk_budget`: for `RelaxedStart`
       8 MiB, 32 MiB with `curves`; 512 MiB for `ApproachHoldLift`).
     - `progress`: print a progress line on stderr (process 0 only).
+    - `on_error`: `"raise"` (default): a swept value outside its allowed range (or, with the
+      plausibility checks on, outside its plausible range) raises a `ValueError` naming the
+      parameter; `"status"`: such a point gets `status = invalid_input` and NaN summaries,
+      the others are computed, and the dataset gains `invalid_parameter` (which parameter,
+      codes in its `flag_meanings`) and `invalid_reason` (why: not finite, below or above
+      its range, implausible). A fixed parameter out of range, or every point bad, still
+      raises.
 
     Parameter names (SI units; see `jaxcontact._sweep._parameters`): the material `G0`,
     `G1`, `eta1` (standard model) or `G_inf`, `G_1`, `tau_1`, ... (Prony series; `G_inf`
@@ -120,7 +164,12 @@ def sweep(
     the start of the lift to the jump-off), `lift_duration_s` and `status` (the `RESULTS`
     code of the point as int8, the codes in its `flag_values` / `flag_meanings`: a failed
     point has an error status and NaN summaries, and never affects the others; a point that
-    did not detach within its lift is `in_contact` with NaN jump-off values). Signs: force
+    did not detach within its lift is `in_contact` with NaN jump-off values),
+    `separation_work_error_J` (its estimated sampling error: 0 for the exact relaxed start,
+    from every sample against every other one for the history) and
+    `separation_work_status` (0 `converged`: within the model's `work_rtol`; 1
+    `undersampled`: beyond it, the work is then NaN; 2 `none`: no work, NaN: an error
+    status or no jump-off within the lift). Signs: force
     compressive positive, adhesive negative; indentation positive into the sample. Save it
     with `ds.to_netcdf("sweep.nc", engine="h5netcdf")`.
 
@@ -143,35 +192,92 @@ def sweep(
         raise ValueError(f"`chunk_size` must be a positive integer; got {plain(chunk_size)}.")
     if memory_limit is not None and not memory_limit > 0:
         raise ValueError(f"`memory_limit` [bytes] must be > 0; got {plain(memory_limit)}.")
-    spec = parse_spec(grid, points, required=model.required, optional=model.optional)
+    if on_error not in ("raise", "status"):
+        raise ValueError(f"`on_error` must be 'raise' or 'status'; got {on_error!r}.")
+    spec = parse_spec(grid, points, required=model.required, optional=model.optional,
+                      on_error=on_error)
+    n_points = spec.size
 
-    # ---- the points in their own units (float64) --------------------------------------------
-    v = spec.values
-    if plausibility_enabled():  # the SI inputs (the run itself works in scaled units)
-        for n, a in v.items():
+    # ---- plausibility of the SI inputs (the run itself works in scaled units) ----------------
+    # every point's value is a coordinate value or a fixed one: those are checked (a grid's
+    # points are never expanded for it), by their extremes (two reductions per array)
+    flags = dict(spec.flags)
+    if plausibility_enabled():
+        checked = [*((n, a) for n, a in spec.coords.items()),
+                   *((n, np.float64(a)) for n, a in spec.fixed.items())]
+        for n, a in checked:
             kind = _PLAUSIBLE_KIND.get(parameter_info(n).dimension)
-            if kind is not None:
-                check_plausible(n, a, kind)
-        # the contact radius at each point's depth, a length too: a profile so flat that
-        # the contact would be kilometres wide (a cone's half-angle near pi/2)
-        touch = spec.profile.build(v).contact_radius(v["depth"])
-        check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
-    length = v["depth"]
-    modulus = spec.material.relaxed_modulus(v)
-    tref = v["depth"] / v["velocity"]
-    scaled = {n: a / scale_factors(parameter_info(n).dimension, length, modulus, tref)
-              for n, a in v.items()}
-    raw, run_info = run_points(
-        model, spec.material, spec.profile, scaled, dtype=np.dtype(precision), curves=curves,
-        chunk_size=chunk_size, memory_limit=memory_limit, progress=progress,
+            if kind is None:
+                continue
+            if on_error == "status" and np.ndim(a) == 1:
+                lo, hi, _ = PLAUSIBLE[kind]
+                mag = np.abs(a)
+                implausible = (mag != 0) & np.isfinite(mag) & ((mag < lo) | (mag > hi))
+                if implausible.any():
+                    f = flags.get(n, np.zeros(a.shape, np.int8)).copy()
+                    f[implausible & (f == 0)] = 4
+                    flags[n] = f
+                continue
+            check_plausible(n, _extremes(a), kind)
+        if on_error == "raise":
+            # the contact radius at the deepest point of the flattest profile (it grows with
+            # the depth and with every profile parameter: R, a cone's half-angle, a punch's
+            # radius) is a length too: a profile so flat that the contact would be kilometres
+            # wide (a cone's half-angle near pi/2) is a unit mistake
+            ext = {n: (np.max(a) if np.ndim(a) else a)
+                   for n, a in {**spec.coords, **spec.fixed}.items()}
+            touch = spec.profile.build(ext).contact_radius(ext["depth"])
+            check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
+    bad_param, bad_reason = _point_flags(spec, flags)
+    good = None if bad_param is None else bad_param == 0
+    if good is not None and not good.any():
+        raise ValueError("every point of the sweep has a parameter outside its range: "
+                         + _first_problem(spec, flags))
+
+    # ---- the points in their own units (float64), chunk by chunk -----------------------------
+    v = spec.values
+    names = tuple(sorted(v))
+    dims_of = {n: parameter_info(n).dimension for n in names}
+    substitute = 0 if good is None else int(np.flatnonzero(good)[0])
+
+    @np.errstate(all="ignore")  # a flagged point's values are replaced below
+    def columns(lo, hi):
+        def part(a):
+            return a[lo:hi] if np.ndim(a) else a
+
+        length = part(v["depth"])
+        modulus = spec.material.relaxed_modulus({n: part(a) for n, a in v.items()})
+        tref = length / part(v["velocity"])
+        out = np.empty((hi - lo, len(names)))
+        for j, n in enumerate(names):
+            out[:, j] = part(v[n]) / scale_factors(dims_of[n], length, modulus, tref)
+        if good is not None and not good[lo:hi].all():
+            # a flagged point computes a valid one's values; its results are dropped
+            out[~good[lo:hi]] = columns(substitute, substitute + 1)[0]
+        return out
+
+    packed, curve_data, run_info = run_points(
+        model, spec.material, spec.profile, names, n_points, columns,
+        dtype=np.dtype(precision), curves=curves, chunk_size=chunk_size,
+        memory_limit=memory_limit, progress=progress,
     )
+    with np.errstate(all="ignore"):  # flagged points: NaN below
+        length = v["depth"]
+        modulus = spec.material.relaxed_modulus(v)
+        tref = v["depth"] / v["velocity"]
     units = {"force": modulus * length**2, "length": length, "time": tref,
              "work": modulus * length**3}
 
     # ---- the dataset ------------------------------------------------------------------------
     dims = spec.dims
-    status = raw["status"].astype(np.int8)
-    failed = ~np.isin(status, [int(RESULTS.detached._value), int(RESULTS.in_contact._value)])
+    row = {f: i for i, f in enumerate(SUMMARY_FIELDS)}
+    status = packed[row["status"]].astype(np.int8)
+    if good is not None:
+        status[~good] = int(RESULTS.invalid_input._value)
+    failed = (status != int(RESULTS.detached._value)) & (status != int(RESULTS.in_contact._value))
+    any_failed = bool(failed.any())
+    # one float64 block for the summaries, scaled in place (no temporaries per field)
+    block = packed[: len(SUMMARIES)].astype(np.float64, copy=packed.dtype != np.float64)
     coords = {}
     for name, values in spec.coords.items():
         info = parameter_info(name)
@@ -185,16 +291,58 @@ def sweep(
         coords[name] = ((), value, dict(units=info.unit, long_name=info.long_name + " (fixed)"))
     data = {}
     for var, (field, kind, meaning) in SUMMARIES.items():
-        x = raw[field].astype(np.float64) * units[kind]
-        x = np.where(failed, np.nan, x)
+        x = block[row[field]]
+        np.multiply(x, units[kind], out=x)
+        if any_failed:
+            x[failed] = np.nan
         data[var] = (dims, x.reshape(spec.shape), dict(units=_UNITS[kind], long_name=meaning))
     data["status"] = (dims, status.reshape(spec.shape), _status_attrs())
+    # the separation work's sampling error (the history model; 0 for the exact relaxed start)
+    work = data["separation_work_J"][1]
+    error = packed[row["separation_work_error"]].astype(np.float64) * np.abs(units["work"])
+    error = error.reshape(spec.shape)
+    rtol = float(model.work_rtol)
+    with np.errstate(invalid="ignore"):
+        converged = error <= rtol * np.abs(work)
+    # none where there is no work or no estimate (no jump-off within the lift: the work
+    # would stop short of it)
+    has_work = np.isfinite(work) & ~np.isnan(error)
+    work_status = np.where(has_work, np.where(converged, 0, 1), 2).astype(np.int8)
+    work[work_status != 0] = np.nan  # a work the samples cannot give within `work_rtol`
+    error[failed.reshape(spec.shape)] = np.nan
+    data["separation_work_error_J"] = (dims, error, dict(
+        units="J", long_name="estimated sampling error of separation_work_J (before it is "
+        "withheld): |W(h) - W(2h)| / (2^1.5 - 1) from every sample and every other one; inf "
+        f"with fewer than {_MIN_TENSION_SAMPLES} lift samples under tension; 0 for the exact "
+        "relaxed start"))
+    data["separation_work_status"] = (dims, work_status, dict(
+        long_name="whether separation_work_J is within the model's work_rtol",
+        work_rtol=rtol, flag_values=np.array([0, 1, 2], np.int8),
+        flag_meanings="converged undersampled none",
+        description="undersampled: the estimated sampling error exceeds work_rtol times the "
+                    "work, which is then NaN (more `samples` fix it); none: no work, NaN (an "
+                    "error status, or no jump-off within the lift)"))
+    if bad_param is not None:
+        names_flagged = list(flags)
+        data["invalid_parameter"] = (dims, bad_param.reshape(spec.shape), dict(
+            long_name="the first parameter of the point outside its range (0: none)",
+            flag_values=np.arange(len(names_flagged) + 1, dtype=np.int8),
+            flag_meanings=" ".join(["none", *names_flagged]),
+            ranges="; ".join(f"{n}: {range_text(n)}" for n in names_flagged)))
+        data["invalid_reason"] = (dims, bad_reason.reshape(spec.shape), dict(
+            long_name="why that parameter was refused (0: valid point)",
+            flag_values=np.arange(len(INVALID_REASONS) + 1, dtype=np.int8),
+            flag_meanings=" ".join(["valid", *(m.split(" (")[0].replace(" ", "_")
+                                                for m in INVALID_REASONS.values())]),
+            description="; ".join(f"{k}: {m}" for k, m in INVALID_REASONS.items())))
     if curves:
         for var, (field, kind, meaning) in _CURVES.items():
             # in place: the curves are large (10^5 x 500 samples: 400 MB per field), and a
             # fresh array per operation costs its page faults (4.6 of 6.8 s there)
-            x = raw[field].astype(np.float64, copy=False)
-            np.multiply(x, units[kind][:, None], out=x)
+            x = curve_data[field].astype(np.float64, copy=False)
+            np.multiply(x, np.reshape(units[kind], (-1, 1)), out=x)
+            if good is not None:
+                x[~good] = np.nan
             data[var] = (dims + ("sample",), x.reshape(spec.shape + (x.shape[-1],)),
                          dict(units=_UNITS[kind], long_name=meaning))
     attrs = dict(

@@ -7,6 +7,8 @@ Which samples
   clipped to it, so noise cannot make the contact "advance").
 * ``model="history"``: the approach, hold and retract segments (a ``rest`` segment is
   dropped), the free part of the approach included: it carries the contact point.
+* ``segments=`` of :func:`fitting.fit` (:func:`check_segments`) narrows this choice before
+  (e.g. the approach alone); the history model needs the approach.
 
 Every selected sample is a residual. Long curves are *subsampled* — never averaged or
 interpolated, which biases a curved signal — to at most `max_samples` per curve

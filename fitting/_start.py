@@ -16,7 +16,9 @@ Data scales (:func:`data_scales`)
   depth for other profiles), with $|F_\min|$ at least $10^{-3}$ of the force range.
 * the largest indentation $d_\max$ and the force range (scales of the two offsets).
 
-Several curves: geometric means (scales) and extremes (time ranges).
+Several curves: geometric means (scales) and extremes (time ranges). An approach-only
+curve (``segments=("approach",)``) is read backwards from its deepest sample in place of a
+retract.
 
 Default bounds (:func:`default_bounds`) keep a fit from running off to $10^{-168}$ Pa:
 moduli in $[10^{-6}, 10^6]\,G_H$, viscosities in $[10^{-6}G_H\tau_\min,

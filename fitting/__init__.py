@@ -41,6 +41,7 @@ from ._optimise import solve_batch as solve_batch
 from ._parameters import Parameterisation as Parameterisation
 from ._parameters import make_parameterisation as make_parameterisation
 from ._prepare import CurveBatch as CurveBatch
+from ._prepare import check_segments as check_segments
 from ._prepare import prepare_curves as prepare_curves
 from ._prepare import select_samples as select_samples
 from ._prepare import stack_batches as stack_batches

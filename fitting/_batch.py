@@ -220,6 +220,7 @@ def fit_each(
     n_starts: int | None = None,
     max_samples: int | None = None,
     indentation_range: tuple[float, float] | None = None,
+    segments: Sequence[str] | str | None = None,
     cells: int = 32,
     max_steps: int = 200,
     optimiser: str = "lm",
@@ -236,7 +237,7 @@ def fit_each(
     **Arguments:** `curves` (:class:`Curve` objects, and :class:`FailedCurve` records for
     curves that could not be loaded: they are reported, not fitted); the options of
     :func:`fitting.fit` (the same meaning, applied to each curve alone; `rheology` is
-    "standard" or "prony:N", nested per curve as in :func:`fit`; "auto" is not offered: a
+    "standard", "elastic" or "prony:N", nested per curve as in :func:`fit`; "auto" is not offered: a
     map needs one model for all points); `chunk` (curves per compiled call; every chunk
     has this shape, so one compilation serves all); `workers` (lanes of the pool per
     device; default: all starts of the chunk, at most 64); `devices` (see
@@ -272,7 +273,7 @@ def fit_each(
         bounds=bounds, contact_point=contact_point, force_offset=force_offset,
         n_starts=n_starts, max_samples=max_samples, cells=cells, max_steps=max_steps,
         optimiser=optimiser, rtol=rtol, seed=seed, local_rounds=local_rounds,
-        indentation_range=indentation_range)
+        indentation_range=indentation_range, segments=segments)
     t_start = time.perf_counter()
     timings = {"prepare": 0.0, "optimise": 0.0, "finish": 0.0}
     show = _Progress(progress, len(items))

@@ -64,10 +64,13 @@ from ._least_squares import LBFGS, LevenbergMarquardt, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
 from ._parameters import Parameterisation, make_parameterisation
 from ._prepare import (
+    SEGMENTS,
     CurveBatch,
     check_indentation_range,
+    check_segments,
     contact_point_mode,
     prepare_curves,
+    select_fit_segments,
 )
 from ._quality import assess, check_contact_signal, r_squared
 from ._result import FitResult, ModelChoice
@@ -268,7 +271,7 @@ def _check_options(n_starts, max_steps, optimiser, rtol):
 
 def _options(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
              bounds, contact_point, force_offset, n_starts, max_samples, cells, max_steps,
-             optimiser, rtol, seed, local_rounds, indentation_range=None):
+             optimiser, rtol, seed, local_rounds, indentation_range=None, segments=None):
     """Checked options of :func:`fit` (`ValueError` naming the argument): the curves as a
     list, the options of every step of the chain of models, and the chain (rheologies)."""
     if isinstance(curves, Curve):
@@ -282,6 +285,7 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
         raise ValueError(f"local_rounds must be an integer >= 0; got {plain(local_rounds)}")
     contact_point = contact_point_mode(contact_point, curves)
     indentation_range = check_indentation_range(indentation_range)
+    segments = check_segments(segments, model)
     if profile is None:
         if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
                                   and radius > 0):
@@ -304,7 +308,8 @@ def _options(curves, *, radius, profile, model, rheology, spring_constant, initi
                 initial=initial, fixed=fixed, bounds=bounds, contact_point=contact_point,
                 force_offset=force_offset, n_starts=n_starts, max_samples=max_samples,
                 cells=cells, max_steps=max_steps, optimiser=optimiser, rtol=rtol, seed=seed,
-                local_rounds=int(local_rounds), indentation_range=indentation_range)
+                local_rounds=int(local_rounds), indentation_range=indentation_range,
+                segments=segments)
     return curves, opts, chain
 
 
@@ -324,6 +329,7 @@ def fit(
     n_starts: int | None = None,
     max_samples: int | None = None,
     indentation_range: tuple[float, float] | None = None,
+    segments: Sequence[str] | str | None = None,
     cells: int = 32,
     max_steps: int = 200,
     progress: bool = True,
@@ -365,6 +371,12 @@ def fit(
       :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`).
     - `indentation_range`: ``(low, high)`` [m]: only samples with indentation in it are
       fitted (nanite's ``range_x``); the model still runs through the whole history.
+    - `segments`: the segments fitted, e.g. ``("approach",)`` or ``"approach,retract"``
+      (`None` or ``"all"``: every segment the model uses). The history model needs the
+      approach; the relaxed model (the retract-only fit of any rheology) the retract. An
+      approach-only fit determines the moduli and nothing of $\Delta\gamma$ (the model's
+      approach is non-adhesive, the JKR limit): `work_of_adhesion` is then held at its
+      `fixed` value, or at its start value, and the result's `warnings` say so.
     - `cells`: foundation grid of the history model. `max_steps`: iterations per start.
     - `progress`: print the stages to stderr. `optimiser`: "lm" (Levenberg–Marquardt) or
       "lbfgs" (optax L-BFGS). `rtol`:
@@ -387,7 +399,8 @@ def fit(
         spring_constant=spring_constant, initial=initial, fixed=fixed, bounds=bounds,
         contact_point=contact_point, force_offset=force_offset, n_starts=n_starts,
         max_samples=max_samples, cells=cells, max_steps=max_steps, optimiser=optimiser,
-        rtol=rtol, seed=seed, local_rounds=local_rounds, indentation_range=indentation_range)
+        rtol=rtol, seed=seed, local_rounds=local_rounds, indentation_range=indentation_range,
+        segments=segments)
     results: list[FitResult] = []
     for rh in chain:
         previous = results[-1] if results else None
@@ -426,15 +439,18 @@ class _Problem:
     param: Parameterisation
     data: CurveBatch
     zs: np.ndarray
+    curves: list = dataclasses.field(default_factory=list)
+    notes: list = dataclasses.field(default_factory=list)
 
 
 def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
              contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
-             indentation_range=None, host=False, **_) -> _Problem:
+             indentation_range=None, host=False, segments=None, **_) -> _Problem:
     spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
                      contact_offset=contact_point == "fit", force_offset=force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
+    curves = select_fit_segments(curves, segments)
     check_contact_signal(curves, spec)
     data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
                           max_samples=max_samples, indentation_range=indentation_range,
@@ -442,6 +458,7 @@ def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixe
     scales = data_scales(curves, spec, profile)
     guess = initial_guess(curves, spec, profile, scales)
     guess.update(normalise_names(initial, names, "initial"))
+    fixed, notes = _approach_only(data, guess, normalise_names(fixed, names, "fixed"))
     bnds = default_bounds(spec, scales)
     bnds.update(normalise_names(bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
@@ -452,7 +469,23 @@ def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixe
         starts += nested_starts(spec, previous.spec, previous.as_dict(), scales)
     zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
                                        for s in starts]))
-    return _Problem(spec, info, names, param, data, zs)
+    return _Problem(spec, info, names, param, data, zs, curves, notes)
+
+
+def _approach_only(data: CurveBatch, guess, fixed) -> tuple[dict, list[str]]:
+    """`fixed` with the work of adhesion held when no retract sample is fitted (the model's
+    approach is non-adhesive, the JKR limit: it does not depend on it), and the note."""
+    retract = (np.asarray(data.segment) == SEGMENTS.index("retract")) & \
+        (np.asarray(data.valid) > 0) & (np.asarray(data.weight) > 0)
+    if np.any(retract):
+        return fixed, []
+    held = "work_of_adhesion" in fixed
+    fixed = dict(fixed)
+    value = fixed.setdefault("work_of_adhesion", float(guess["work_of_adhesion"]))
+    return fixed, [
+        f"work_of_adhesion: not fitted: no retract sample is fitted, and the model's "
+        f"approach does not depend on it (non-adhesive loading, the JKR limit); held at "
+        f"{value:.4g} J/m^2 ({'the fixed value' if held else 'its start value, no result'})"]
 
 
 def _best_loss(chi2) -> float:
@@ -546,11 +579,15 @@ def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timing
     n = data.n_measured
     chi2 = unc.chi2
     ll = n * math.log(max(chi2, 1e-300) / n)
+    curves = pb.curves or curves  # as fitted: restricted to the chosen segments
     msgs = list(unc.warnings)
     msgs += _validity_warnings(spec, curves, profile, radius_model, valid)
     if warn:
         for m in msgs[len(unc.warnings):]:
             warn_at_caller(m, ModelValidityWarning)
+        for m in pb.notes:
+            warn_at_caller(m, IdentifiabilityWarning)
+    msgs = list(pb.notes) + msgs
     fixed_mask = np.ones(len(names), dtype=bool)
     fixed_mask[list(param.free)] = False
     timings["uncertainty"] = time.perf_counter() - t0

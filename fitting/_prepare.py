@@ -7,6 +7,8 @@ Which samples
   clipped to it, so noise cannot make the contact "advance").
 * ``model="history"``: the approach, hold and retract segments (a ``rest`` segment is
   dropped), the free part of the approach included: it carries the contact point.
+* ``segments=`` of :func:`fitting.fit` (:func:`check_segments`) narrows this choice before
+  (e.g. the approach alone); the history model needs the approach.
 
 Every selected sample is a residual. Long curves are *subsampled* — never averaged or
 interpolated, which biases a curved signal — to at most `max_samples` per curve
@@ -54,14 +56,14 @@ from jaxtyping import Array, Float, Int
 import jaxcontact as jc
 from jaxcontact._validate import plain
 
-from ._curve import Curve
+from ._curve import Curve, select_segments
 from ._spec import ModelSpec
 
 __all__ = ["CurveBatch", "prepare_curves", "stack_batches", "select_samples", "sample_weights",
            "noise_level",
            "SEGMENTS",
            "DEFAULT_MAX_SAMPLES", "CONTACT_POINT", "contact_point_mode",
-           "check_indentation_range"]
+           "check_indentation_range", "check_segments", "select_fit_segments"]
 
 #: Segment codes of :attr:`CurveBatch.segment`.
 SEGMENTS = ("approach", "hold", "retract")
@@ -108,6 +110,59 @@ def check_indentation_range(indentation_range) -> tuple[float, float] | None:
         raise ValueError("indentation_range must be finite with low < high [m]; got "
                          f"{plain((lo, hi))}")
     return lo, hi
+
+
+def check_segments(segments, model: str) -> tuple[str, ...] | None:
+    """`segments` of a fit as a tuple of names (None or ``"all"``: every segment the model
+    uses), or a `ValueError` naming it.
+
+    Names: ``"approach"``, ``"hold"``, ``"retract"`` (a string is split at commas). The
+    relaxed model describes the retract only, so its selection must contain
+    ``"retract"``; the history model needs the approach (the contact's history; a
+    viscoelastic retract depends on it), so its selection must contain ``"approach"``. A
+    retract-only fit is the relaxed model (exact for ``rheology="elastic"``: an elastic
+    retract depends on the largest depth only).
+    """
+    if segments is None:
+        return None
+    if isinstance(segments, str):
+        segments = [s.strip() for s in segments.split(",") if s.strip()]
+    try:
+        names = tuple(str(s) for s in segments)
+    except TypeError:
+        raise ValueError(f"segments must be names from {SEGMENTS} or 'all'; got "
+                         f"{plain(segments)}") from None
+    if names == ("all",):
+        return None
+    bad = [s for s in names if s not in SEGMENTS]
+    if bad or not names:
+        raise ValueError(f"segments must be names from {SEGMENTS} or 'all'; got "
+                         f"{plain(segments)}")
+    if model == "relaxed" and "retract" not in names:
+        raise ValueError(f"segments {names}: the relaxed model describes the retract; "
+                         "include 'retract', or fit the approach with model='history'")
+    if model == "history" and "approach" not in names:
+        raise ValueError(f"segments {names}: the history model needs the approach (the "
+                         "contact's history); for a retract alone use model='relaxed' (a "
+                         "retract after a hold long enough to relax, or any retract with "
+                         "rheology='elastic')")
+    return tuple(s for s in SEGMENTS if s in names)
+
+
+def select_fit_segments(curves: Sequence[Curve], segments: tuple[str, ...] | None):
+    """The curves restricted to `segments` (:func:`check_segments`; None: unchanged) by
+    :func:`fitting.select_segments`; a segment a curve lacks is skipped, a curve with none
+    of them is a `ValueError` naming it."""
+    if segments is None:
+        return list(curves)
+    out = []
+    for n, c in enumerate(curves):
+        present = [s for s in segments if s in c.segment_names]
+        if not present:
+            raise ValueError(f"segments: curve {n} ({c.source or 'no source'}) has none of "
+                             f"{segments}; its segments are {c.segment_names}")
+        out.append(select_segments(c, *present))
+    return out
 
 
 class CurveBatch(eqx.Module):
@@ -255,9 +310,11 @@ def _select(curve: Curve, spec: ModelSpec, n: int) -> tuple[Curve, np.ndarray]:
         seg = np.full(int(keep.sum()), SEGMENTS.index("retract"))
     else:
         wanted = [s for s in SEGMENTS if s in names]
-        if "retract" not in wanted:
+        if "approach" not in wanted:
             raise ValueError(f"curve {n} ({curve.source or 'no source'}): the history model "
-                             f"needs a retract segment; its segments are {names}")
+                             f"needs an approach segment (the contact's history); its "
+                             f"segments are {names}; for a retract alone use "
+                             "model='relaxed'")
         keep = np.isin(np.asarray(names, dtype=object)[curve.segment], wanted)
         seg = np.array([SEGMENTS.index(names[j]) for j in curve.segment[keep]])
     return seg, index[keep]

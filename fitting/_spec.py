@@ -5,6 +5,8 @@ Parameters, in vector order (natural units, SI):
 * standard model (creep form, paper section 3): $G_0$ [Pa] (glass), $G_1$ [Pa] and
   $\eta_1$ [Pa s] (the Kelvin element);
 * ``prony:N`` (relaxation form): $G_\infty$ [Pa], $G_1..G_N$ [Pa], $\tau_1..\tau_N$ [s];
+* ``elastic``: one shear modulus $G$ [Pa] (glass and relaxed moduli coincide: Hertz/MDR on
+  the approach, JKR with the energetic (Griffith) criterion on the retract);
 * always the work of adhesion $\Delta\gamma$ [J/m²];
 * optionally a contact-point offset $\delta$ [m] (added to the measured indentation:
   the model sees $d + \delta$; $\delta > 0$ means the true contact was *before* the
@@ -17,7 +19,8 @@ offsets take any sign and are fitted linearly (:class:`fitting._parameters.Param
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -34,10 +37,73 @@ __all__ = [
     "canonical_name",
     "normalise_names",
     "rheology_name",
+    "RHEOLOGIES",
+    "RheologyKind",
 ]
 
 #: Units of the parameter kinds, as written in column names.
 UNITS = ("Pa", "Pa_s", "s", "J_m2", "m", "N")
+
+
+@dataclasses.dataclass(frozen=True)
+class RheologyKind:
+    """One rheology the fits offer (an entry of :data:`RHEOLOGIES`).
+
+    **Fields:** `arms` (`None`: the name takes no argument and has this many arms, given by
+    `fixed_arms`; else the allowed range `(lo, hi)` of N in ``"name:N"``), `fixed_arms`,
+    `parameters` (arms → `[(short name, unit, kind), ...]` of the rheology's parameters, in
+    vector order), `build` ((natural parameters, arms) → a jaxcontact rheology),
+    `from_moduli` ((relaxed modulus, glass modulus, relaxation times, arm shares, arms) →
+    `{name: value}`: the parameters of a material with these moduli; the starts of a fit),
+    `help` (the parameters, in words).
+    """
+
+    arms: tuple[int, int] | None
+    fixed_arms: int
+    parameters: Callable[[int], list[tuple[str, str, str]]]
+    build: Callable
+    from_moduli: Callable[..., dict[str, float]]
+    help: str
+
+
+def _standard_moduli(g_inf, g_glass, taus, weights, arms):
+    g0 = g_glass
+    g1 = g0 * g_inf / (g0 - g_inf)
+    return {"G0": g0, "G1": g1, "eta1": float(taus[0]) * (g0 + g1)}
+
+
+def _prony_moduli(g_inf, g_glass, taus, weights, arms):
+    out = {"G_inf": g_inf}
+    for k in range(arms):
+        out[f"G_{k + 1}"] = (g_glass - g_inf) * float(weights[k])
+        out[f"tau_{k + 1}"] = float(taus[k])
+    return out
+
+
+def _prony_parameters(arms):
+    return ([("G_inf", "Pa", "modulus")]
+            + [(f"G_{k + 1}", "Pa", "modulus") for k in range(arms)]
+            + [(f"tau_{k + 1}", "s", "time") for k in range(arms)])
+
+
+#: The rheologies of a fit, by name (``rheology="standard"``, ``"prony:N"``, ``"elastic"``).
+RHEOLOGIES: dict[str, RheologyKind] = {
+    "standard": RheologyKind(
+        arms=None, fixed_arms=1,
+        parameters=lambda arms: [("G0", "Pa", "modulus"), ("G1", "Pa", "modulus"),
+                                 ("eta1", "Pa_s", "viscosity")],
+        build=lambda p, arms: jc.StandardModel(p[0], p[1], p[2]),
+        from_moduli=_standard_moduli, help="G0 [Pa], G1 [Pa], eta1 [Pa s]"),
+    "prony": RheologyKind(
+        arms=(1, 8), fixed_arms=0, parameters=_prony_parameters,
+        build=lambda p, arms: jc.PronySeries(p[0], p[1:1 + arms], p[1 + arms:1 + 2 * arms]),
+        from_moduli=_prony_moduli, help="G_inf, G_1..G_N [Pa], tau_1..tau_N [s]"),
+    "elastic": RheologyKind(
+        arms=None, fixed_arms=0, parameters=lambda arms: [("G", "Pa", "modulus")],
+        build=lambda p, arms: jc.Elastic(p[0]),
+        from_moduli=lambda g_inf, g_glass, taus, weights, arms: {"G": g_inf},
+        help="G [Pa]"),
+}
 
 
 class ModelSpec(eqx.Module):
@@ -45,7 +111,8 @@ class ModelSpec(eqx.Module):
 
     **Fields:** `model` ("relaxed": :func:`jaxcontact.retract` on the retract segment;
     "history": :func:`jaxcontact.simulate` on approach, hold and retract), `rheology`
-    ("standard" or "prony"), `arms` (Prony arms; 1 for the standard model), `compliant`
+    (a key of :data:`RHEOLOGIES`: "standard", "prony" or "elastic"), `arms` (Prony arms; 1
+    for the standard model, 0 for the elastic one), `compliant`
     (history model under :class:`jaxcontact.CompliantLoading`), `cells` (foundation grid
     cells of the history model), `contact_offset` (fit the indentation offset $\\delta$),
     `force_offset` (fit the force offset $F_0$).
@@ -63,40 +130,43 @@ class ModelSpec(eqx.Module):
 def make_spec(model: str = "relaxed", rheology: str = "standard", *,
               compliant: bool = False, cells: int = 32, contact_offset: bool = False,
               force_offset: bool = False) -> ModelSpec:
-    """Parse and check the model choice (`rheology` is "standard" or "prony:N", N ≥ 1)."""
+    """Parse and check the model choice (`rheology` is "standard", "prony:N" with N in
+    [1, 8], or "elastic"; see :data:`RHEOLOGIES`)."""
     if model not in ("relaxed", "history"):
         raise ValueError(f"model must be 'relaxed' or 'history'; got {model!r}")
-    if rheology == "standard":
-        kind, arms = "standard", 1
-    elif isinstance(rheology, str) and rheology.startswith("prony:"):
-        try:
-            arms = int(rheology.split(":", 1)[1])
-        except ValueError:
-            arms = 0
-        if not 1 <= arms <= 8:
-            raise ValueError(f"rheology 'prony:N' needs an integer N in [1, 8]; got "
-                             f"{rheology!r}")
-        kind = "prony"
+    name, colon, arg = rheology.partition(":") if isinstance(rheology, str) else ("", "", "")
+    kind = RHEOLOGIES.get(name)
+    if kind is None or (kind.arms is None and colon):
+        raise ValueError(f"rheology must be 'standard', 'prony:N' (N in [1, 8]), 'elastic' "
+                         f"or 'auto'; got {rheology!r}")
+    if kind.arms is None:
+        arms = kind.fixed_arms
     else:
-        raise ValueError(f"rheology must be 'standard', 'prony:N' (N in [1, 8]) or 'auto'; "
-                         f"got {rheology!r}")
+        try:
+            arms = int(arg)
+        except ValueError:
+            arms = kind.arms[0] - 1
+        if not kind.arms[0] <= arms <= kind.arms[1]:
+            raise ValueError(f"rheology '{name}:N' needs an integer N in "
+                             f"[{kind.arms[0]}, {kind.arms[1]}]; got {rheology!r}")
     if compliant and model != "history":
         raise ValueError("a compliant loading system (spring_constant) needs model='history'")
     if int(cells) < 2:
         raise ValueError(f"cells must be an integer >= 2; got {cells!r}")
-    return ModelSpec(model=model, rheology=kind, arms=arms, compliant=bool(compliant),
+    return ModelSpec(model=model, rheology=name, arms=arms, compliant=bool(compliant),
                      cells=int(cells), contact_offset=bool(contact_offset),
                      force_offset=bool(force_offset))
 
 
 def rheology_name(spec: ModelSpec) -> str:
-    """"standard" or "prony:N"."""
-    return "standard" if spec.rheology == "standard" else f"prony:{spec.arms}"
+    """The rheology's name as given: "standard", "elastic" or "prony:N"."""
+    return spec.rheology if RHEOLOGIES[spec.rheology].arms is None else \
+        f"{spec.rheology}:{spec.arms}"
 
 
 def n_material(spec: ModelSpec) -> int:
     """Number of rheology parameters (the work of adhesion follows them)."""
-    return 3 if spec.rheology == "standard" else 1 + 2 * spec.arms
+    return len(RHEOLOGIES[spec.rheology].parameters(spec.arms))
 
 
 def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
@@ -105,12 +175,7 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
     Kinds: "modulus", "viscosity", "time", "adhesion" (all positive, fitted in logs),
     "offset_length", "offset_force" (any sign, fitted linearly).
     """
-    if spec.rheology == "standard":
-        out = [("G0", "Pa", "modulus"), ("G1", "Pa", "modulus"), ("eta1", "Pa_s", "viscosity")]
-    else:
-        out = [("G_inf", "Pa", "modulus")]
-        out += [(f"G_{k + 1}", "Pa", "modulus") for k in range(spec.arms)]
-        out += [(f"tau_{k + 1}", "s", "time") for k in range(spec.arms)]
+    out = list(RHEOLOGIES[spec.rheology].parameters(spec.arms))
     out.append(("work_of_adhesion", "J_m2", "adhesion"))
     if spec.contact_offset:
         out.append(("contact_offset", "m", "offset_length"))
@@ -121,10 +186,7 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
 
 def build_rheology(spec: ModelSpec, p: Float[Array, " p"]):
     """The rheology for natural parameters `p` (vector order of :func:`parameter_info`)."""
-    if spec.rheology == "standard":
-        return jc.StandardModel(p[0], p[1], p[2])
-    n = spec.arms
-    return jc.PronySeries(p[0], p[1:1 + n], p[1 + n:1 + 2 * n])
+    return RHEOLOGIES[spec.rheology].build(p, spec.arms)
 
 
 def offsets(spec: ModelSpec, p: Float[Array, " p"]):

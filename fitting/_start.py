@@ -16,7 +16,9 @@ Data scales (:func:`data_scales`)
   depth for other profiles), with $|F_\min|$ at least $10^{-3}$ of the force range.
 * the largest indentation $d_\max$ and the force range (scales of the two offsets).
 
-Several curves: geometric means (scales) and extremes (time ranges).
+Several curves: geometric means (scales) and extremes (time ranges). An approach-only
+curve (``segments=("approach",)``) is read backwards from its deepest sample in place of a
+retract.
 
 Default bounds (:func:`default_bounds`) keep a fit from running off to $10^{-168}$ Pa:
 moduli in $[10^{-6}, 10^6]\,G_H$, viscosities in $[10^{-6}G_H\tau_\min,
@@ -71,7 +73,7 @@ import numpy as np
 import jaxcontact as jc
 
 from ._curve import Curve
-from ._spec import ModelSpec, n_material, parameter_info
+from ._spec import RHEOLOGIES, ModelSpec, n_material, parameter_info
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
            "nested_starts", "local_starts", "LocalRounds", "distinct", "latin_hypercube",
@@ -118,6 +120,10 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
         names = c.segment_names
         r = c.segment == names.index("retract") if "retract" in names else np.ones(len(c), bool)
         t, d, f = c.time[r], c.displacement[r], c.force[r]
+        if "retract" not in names and spec.model == "history":
+            # an approach-only fit: the approach read backwards from its deepest sample
+            i = int(np.argmax(d))
+            t, d, f = t[: i + 1], d[i::-1], f[i::-1]
         if spec.model == "relaxed":
             depth = float(d[0])
         else:
@@ -169,15 +175,7 @@ def from_physical(spec: ModelSpec, g_inf: float, g_glass: float, taus, weights,
     """Natural parameters of `spec` from relaxed and glass moduli, relaxation times and the
     share of each arm in $G_g - G_\\infty$ (`weights`, summing to 1)."""
     g_glass = max(g_glass, 1.0001 * g_inf)
-    if spec.rheology == "standard":
-        g0 = g_glass
-        g1 = g0 * g_inf / (g0 - g_inf)
-        out = {"G0": g0, "G1": g1, "eta1": float(taus[0]) * (g0 + g1)}
-    else:
-        out = {"G_inf": g_inf}
-        for k in range(spec.arms):
-            out[f"G_{k + 1}"] = (g_glass - g_inf) * float(weights[k])
-            out[f"tau_{k + 1}"] = float(taus[k])
+    out = RHEOLOGIES[spec.rheology].from_moduli(g_inf, g_glass, taus, weights, spec.arms)
     out["work_of_adhesion"] = work
     if spec.contact_offset:
         out["contact_offset"] = delta
@@ -192,7 +190,7 @@ def initial_guess(curves: Sequence[Curve], spec: ModelSpec, profile,
     s = data_scales(curves, spec, profile) if scales is None else scales
     n = spec.arms
     taus = s.tau * np.logspace(-1, 1, n) if n > 1 else [s.tau]
-    return from_physical(spec, s.g_relaxed, s.g_glass, taus, np.full(n, 1.0 / n),
+    return from_physical(spec, s.g_relaxed, s.g_glass, taus, np.full(n, 1.0 / max(n, 1)),
                          s.work_of_adhesion)
 
 

@@ -201,7 +201,7 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
     incompressible half-space) beside every shear modulus, and the relaxed modulus
     $G_\infty$ (the rheology's ``relaxed_modulus``; the one modulus curves without a hold
     determine) with $E_\infty$. Standard model: ``E0``, ``E1``, ``G_inf``, ``E_inf``, ``tau``
-    ($\eta_1/(G_0+G_1)$, the relaxation time at fixed strain). Prony series: ``G_0``
+    ($\eta_1/(G_0+G_1)$, the relaxation time at fixed strain). Elastic: ``E``. Prony series: ``G_0``
     (glass modulus $G_\infty + \sum G_k$), ``E_0``, ``E_inf``, ``E_k``.
 
     **Returns:** one dict per quantity: ``name``, ``unit``, ``value``, ``stderr`` (nan when
@@ -214,7 +214,12 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
     from ._spec import build_rheology, parameter_info
 
     names = [n for n, _, _ in parameter_info(spec)]
-    if spec.rheology == "standard":
+    if spec.rheology == "elastic":
+        rows = [("E", "Pa", "3 G")]
+
+        def fn(q):
+            return 3 * q[:1]
+    elif spec.rheology == "standard":
         rows = [("E0", "Pa", "3 G0"), ("E1", "Pa", "3 G1"),
                 ("G_inf", "Pa", "G0 G1 / (G0 + G1), relaxed shear modulus"),
                 ("E_inf", "Pa", "3 G_inf"), ("tau", "s", "eta1 / (G0 + G1)")]

@@ -89,10 +89,12 @@ def add_fit_arguments(parser):
                         help="relaxed (default, as fitting.fit): the retract after a hold "
                              "long enough to relax (the report warns when the curves have no "
                              "such hold); history: the whole approach-hold-lift")
-    parser.add_argument("--rheology", default="standard", metavar="standard|prony:N|auto",
+    parser.add_argument("--rheology", default="standard",
+                        metavar="standard|prony:N|elastic|auto",
                         help="standard model (G0 [Pa], G1 [Pa], eta1 [Pa s]), Prony series "
-                             "with N arms (G_inf, G_k [Pa], tau_k [s]), or auto: standard and "
-                             "prony:1..3, chosen by BIC")
+                             "with N arms (G_inf, G_k [Pa], tau_k [s]), elastic (one modulus "
+                             "G [Pa], E = 3G: Hertz/MDR on the approach, JKR on the retract), "
+                             "or auto: standard and prony:1..3, chosen by BIC")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parameter at a value (SI units; repeatable), e.g. "
                              "--fix work_of_adhesion=0.01")
@@ -129,9 +131,13 @@ def add_fit_arguments(parser):
     parser.add_argument("--baseline", choices=("constant", "linear", "none"), default=None,
                         help="force baseline removed before the fit: constant (the loader's "
                              "default), linear (drift in time), none")
-    parser.add_argument("--segments", default=None, metavar="NAME,...",
-                        help="segments to fit, e.g. approach,hold,retract (default: all that "
-                             "the model uses)")
+    parser.add_argument("--segments", default=None,
+                        metavar="approach|retract|approach,retract|...|all",
+                        help="segments to fit (comma-separated names from approach, hold, "
+                             "retract; default all: every segment the model uses). The "
+                             "history model needs the approach (approach alone: the moduli, "
+                             "work_of_adhesion held and said so), the relaxed model the "
+                             "retract (the retract-only fit of any rheology)")
     parser.add_argument("--spring-constant", type=float, default=None, metavar="N_M",
                         help="cantilever stiffness [N/m]: compliant loading (history model); "
                              "overrides the spring constant of an instrument file")
@@ -235,13 +241,6 @@ def load_inputs(args) -> tuple[list, bool]:
         if len(loaded) == 1 and isinstance(loaded[0], fitting.FailedCurve):
             raise UsageError(f"FILE {f}: {_without_path(loaded[0].reason, p, f)}")
         multi = multi or len(loaded) > 1
-        if args.segments:
-            keep = [s.strip() for s in args.segments.split(",") if s.strip()]
-            try:
-                loaded = [fitting.select_segments(c, *keep)
-                          if isinstance(c, fitting.Curve) else c for c in loaded]
-            except (ValueError, KeyError) as exc:
-                raise UsageError(f"argument --segments: {f}: {exc}") from None
         curves += loaded
     return curves, multi
 
@@ -305,6 +304,14 @@ def _check(args):
             fitting.make_spec(args.model, args.rheology)
         except ValueError as exc:
             raise UsageError(f"argument --rheology: {exc}") from None
+    try:
+        args.segments = fitting.check_segments(args.segments, args.model)
+    except ValueError as exc:
+        msg = str(exc)
+        for word in ("model='relaxed'", "model='history'", "rheology='elastic'"):
+            name, value = word.split("=")
+            msg = msg.replace(word, f"--{name} {value.strip(chr(39))}")
+        raise UsageError(f"argument --segments: {msg}") from None
     fixed = parse_assignments("--fix", args.fix)
     bounds = parse_assignments("--bounds", args.bounds, ranges=True)
     initial = parse_assignments("--initial", args.initial)
@@ -330,7 +337,7 @@ def run(args) -> int:
                    bounds=bounds or None, initial=initial or None,
                    spring_constant=args.spring_constant, max_samples=args.max_samples,
                    cells=args.cells, progress=not args.quiet, force_offset=args.force_offset,
-                   indentation_range=indentation_range)
+                   indentation_range=indentation_range, segments=args.segments)
     if args.starts is not None:
         options["n_starts"] = args.starts
     if args.max_steps is not None:

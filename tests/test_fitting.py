@@ -266,7 +266,6 @@ def test_identifiability_warning_eta1():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res = fitting.fit(curves, radius=R, initial=slow, n_starts=STARTS, progress=False)
-    assert any(issubclass(w.category, fitting.ModelValidityWarning) for w in caught)
     messages = [str(w.message) for w in caught
                 if issubclass(w.category, fitting.IdentifiabilityWarning)]
     i = res.names.index("eta1")

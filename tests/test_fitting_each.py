@@ -180,9 +180,9 @@ def test_fit_each_warns_once_per_kind_and_keeps_each_curves_warning(curves, tmp_
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         each = fitting.fit_each(unheld, radius=R, n_starts=STARTS, chunk=2, progress=False)
-    hold = [str(w.message) for w in caught if "an approach and no hold" in str(w.message)]
-    assert len(hold) == 1 and hold[0].startswith("3 of 3 fitted curves"), hold
-    assert caught[0].filename == __file__  # attributed to the caller's line
+    hold = [w for w in caught if "an approach and no hold" in str(w.message)]
+    assert len(hold) == 1 and str(hold[0].message).startswith("3 of 3 fitted curves"), hold
+    assert hold[0].filename == __file__  # attributed to the caller's line
     paths = fitting.write_each_report(each, tmp_path)
     import csv
 

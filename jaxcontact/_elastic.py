@@ -108,7 +108,7 @@ def _finish(out, checks, entry_ok, entry_item, *, throw, radius=None, profile=No
     finite = jnp.isfinite(out)
     scalar = fold_results(RESULTS.successful, checks)
     inside = True
-    if radius is not None:
+    if radius is not None and plausibility_enabled():  # part of the plausibility checks
         inside = jnp.logical_not(jnp.asarray(radius) > profile.valid_radius)
         entry_ok = entry_ok & inside
     result = fold_results(scalar, [

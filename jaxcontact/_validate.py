@@ -490,7 +490,14 @@ def module_repr(module) -> str:
 
 def contact_radius_valid(profile, a):
     """Traced: no entry of the contact radius `a` [m] beyond `profile.valid_radius` (a
-    Parabola's `R`, a bounded shape's edge); NaN entries pass (other checks report them)."""
+    Parabola's `R`, a bounded shape's edge); NaN entries pass (other checks report them).
+
+    Part of the plausibility checks: `plausibility_checks(False)` switches it off (always
+    True), as the fitting objective does while it searches (a start whose paraboloid
+    contact passes R is a point of the search, not a result; the fit's report checks the
+    result against the profile's limit)."""
+    if not plausibility_enabled():
+        return jnp.asarray(True)
     return jnp.all(jnp.logical_not(jnp.asarray(a) > profile.valid_radius))
 
 
@@ -515,7 +522,7 @@ def check_contact_radius(profile, a, source: str) -> None:
     got = float(arr.max())
     limit = float(np.asarray(profile.valid_radius))
     name = type(profile).__name__
-    if got > limit:
+    if got > limit and plausibility_enabled():
         what = ("radius `R`" if math.isfinite(limit) and hasattr(profile, "R")
                 else "`valid_radius`")
         raise ValueError(

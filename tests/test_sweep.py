@@ -244,7 +244,7 @@ def test_default_cpu_chunk_fits_the_models_budget(model, curves):
     from jaxcontact._sweep._parameters import _ProfileFamily, _StandardFamily
     from jaxcontact._sweep._run import _compiled, chunk_size_for
 
-    devices = tuple(jax.devices()[:1])
+    devices = tuple(jax.devices("cpu")[:1])  # a CPU device also where the default is a GPU
     chunk = chunk_size_for(model, 1, 8, curves, 10**7, 1, devices=devices)
     names = tuple(sorted(["G0", "G1", "eta1", "work_of_adhesion", "velocity", "R", "depth",
                           *(["hold", "approach_velocity"] if model.name == "history" else [])]))
@@ -300,7 +300,7 @@ def test_on_error_status_flags_bad_points_and_keeps_going(relaxed):
     with pytest.raises(ValueError, match=r"`G0` must lie in \(0, inf\) \[Pa\]"):
         jc.sweep(points=pts, model=RELAXED, chunk_size=CHUNK, progress=False)
     ds = jc.sweep(points=pts, model=RELAXED, chunk_size=CHUNK, progress=False,
-                  on_error="status")
+                  precision="float64", on_error="status")
     ok, bad = [0, 3], [1, 2, 4]
     detached, invalid = int(jc.RESULTS.detached._value), int(jc.RESULTS.invalid_input._value)
     assert list(ds.status.values) == [detached, invalid, invalid, detached, invalid]
@@ -317,7 +317,8 @@ def test_on_error_status_flags_bad_points_and_keeps_going(relaxed):
         np.testing.assert_allclose(ds[name].values[ok], alone[name].values, rtol=1e-12)
     # on a grid a bad coordinate flags its slice; a bad fixed value spoils every point
     grid = dict(STD, velocity=np.array([1e-6, -1e-4, 1e-2]))
-    dg = jc.sweep(grid, model=RELAXED, chunk_size=CHUNK, progress=False, on_error="status")
+    dg = jc.sweep(grid, model=RELAXED, chunk_size=CHUNK, progress=False, on_error="status",
+                  precision="float64")
     assert (dg.status.isel(velocity=1) == invalid).all()
     assert np.isnan(dg.jumpoff_force_N.isel(velocity=1)).all()
     for name in SUMMARIES:

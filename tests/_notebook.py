@@ -15,7 +15,8 @@ re-executes every cell and checks that the stored outputs belong to the current 
 that each cell draws the figures it stored, and that the stored text agrees with the text
 the cell prints now (every number within a relative 2 %, since a stored number is rounded
 to the digits it was printed with; the words exactly; a cell tagged ``volatile``, which
-prints a timing or a date, is compared by its words alone). The runner also enforces the
+prints a timing, a date or an environment-dependent repr, by its lines' first words). The
+runner also enforces the
 notebooks' conventions: every figure's axes labelled with units (a `[...]` in each axis
 label), and a markdown cell (the reading of the figure) right after every code cell that
 draws one.
@@ -130,13 +131,20 @@ def _text_of(outputs: list[dict]) -> str:
 
 
 def _same_text(stored: str, now: str, *, numbers: bool = True) -> str | None:
-    """None if `now` reads as `stored` (words equal, numbers within 2 % unless not
-    `numbers`: a cell tagged ``volatile`` prints timings or dates), else a reason."""
+    """None if `now` reads as `stored` (words equal, numbers within 2 %), else a reason.
+    Not `numbers` (a cell tagged ``volatile``: it prints timings, dates or an object's
+    environment-dependent repr): the same number of lines, each starting with the same
+    word."""
+    if not numbers:
+        first = [line.split()[:1] for line in stored.splitlines()]
+        if first != [line.split()[:1] for line in now.splitlines()]:
+            return f"stored:\n{stored}\nnow:\n{now}"
+        return None
     words_s, words_n = _NUMBER.split(stored), _NUMBER.split(now)
     nums_s, nums_n = _NUMBER.findall(stored), _NUMBER.findall(now)
     if [w.split() for w in words_s] != [w.split() for w in words_n] or len(nums_s) != len(nums_n):
         return f"stored:\n{stored}\nnow:\n{now}"
-    for a, b in zip(nums_s, nums_n, strict=True) if numbers else ():
+    for a, b in zip(nums_s, nums_n, strict=True):
         x, y = float(a), float(b)
         if abs(x - y) > 0.02 * max(abs(x), abs(y)) and abs(x - y) > 1e-12:
             return f"{a} stored, {b} now:\nstored:\n{stored}\nnow:\n{now}"

@@ -206,6 +206,7 @@ def test_bad_options_are_named(curves):
         fitting.fit_each(curves, radius=R, local_rounds=-1)
 
 
+@pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)
 def test_force_map_file_through_the_command_line(tmp_path, capsys):
     from jaxcontact_cli import main
 

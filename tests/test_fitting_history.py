@@ -85,6 +85,7 @@ def test_contact_offset_recovered(subsampled_fit):
     assert 0.6 < res.reduced_chi2 < 1.6
 
 
+@pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)
 def test_subsampling_does_not_bias_the_history_fit(shifted, subsampled_fit):
     """All 900 samples against 150 kept ones (each standing for its neighbours): the same
     optimum within the subsample's standard errors (the old interpolating resampling to

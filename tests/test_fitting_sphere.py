@@ -4,6 +4,7 @@ paraboloid's 0.3 R) are fitted back by `profile=jc.Sphere(R)`."""
 import warnings
 
 import numpy as np
+import pytest
 
 import fitting
 import jaxcontact as jc
@@ -27,6 +28,7 @@ def _curves(profile):
     return out
 
 
+@pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)
 def test_fit_with_the_exact_sphere_recovers_the_parameters():
     sphere = jc.Sphere(R)
     curves = _curves(sphere)

@@ -341,6 +341,7 @@ def _outputs(sol, before):
     )
 
 
+@pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)
 def test_gradients_match_finite_differences():
     # through approach, hold and lift, w.r.t. G0, G1, eta1 and the work of adhesion
     ts, d = _aph_history()

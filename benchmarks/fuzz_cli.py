@@ -158,9 +158,12 @@ def main(argv=None) -> int:
     _csv(t / "zero.csv", ts, d, np.zeros(n))
     _csv(t / "const.csv", ts, d, np.full(n, 1e-9))
     short = _good_curve(t, "short.csv", n=5)
-    for tried, path, rcs in [("a zero-force curve", t / "zero.csv", {1, 2}),
-                             ("a constant-force curve", t / "const.csv", {1, 2}),
-                             ("a 5-sample curve", short, {1, 2, 3})]:
+    for tried, path, rcs in [
+            ("a zero-force curve: refused (no contact)", t / "zero.csv", {2}),
+            ("a constant-force curve: refused, or written as not converged (exit 3)",
+             t / "const.csv", {2, 3}),
+            ("a noiseless 5-sample curve of the model itself: the three moduli exact, the "
+             "work of adhesion reported not determined (no jump-off)", short, {0, 3})]:
         out = t / f"o-{path.stem}"
         case("fit: degenerate data", tried,
              lambda path=path, out=out: _cli(t, "fit", path, "--radius", "1e-5", "--out", out,

@@ -99,6 +99,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from . import _sharding
 from ._criteria import BEM_CHI
 from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
@@ -262,7 +263,7 @@ def _pk_solve(khat, target, bonded, q0, k00, tol, max_iter, frozen=None):
         # H q is updated linearly (H q - tau r); one more convolution only when the
         # projection or the re-entry of penetrating cells changed q off that line
         fix = q_new - q_lin
-        hq = jax.lax.cond(jnp.any(fix != 0), lambda: hq - tau * r + _convolve(khat, fix),
+        hq = _sharding.cond(jnp.any(fix != 0), lambda: hq - tau * r + _convolve(khat, fix),
                           lambda: hq - tau * r)
         change = jnp.sum(jnp.abs(q_new - q))
         err = safe_div(change, jnp.sum(jnp.abs(q_new)), change)
@@ -272,7 +273,7 @@ def _pk_solve(khat, target, bonded, q0, k00, tol, max_iter, frozen=None):
 
     init = (q, _convolve(khat, q), jnp.zeros_like(q), jnp.zeros((), dtype),
             jnp.zeros((), dtype), 0, jnp.asarray(jnp.inf, dtype))
-    q, _, _, _, _, it, err = jax.lax.while_loop(cond, body, init)
+    q, _, _, _, _, it, err = _sharding.while_loop(cond, body, init)
     return q, _convolve(khat, q), it, err <= tol
 
 
@@ -307,7 +308,7 @@ def _pk_force(khat, h, total, tol, max_iter):
         any_nol = jnp.any(nol)
         q_new = jnp.where(nol, q_new - tau * g, q_new)
         fix = q_new - q_lin  # H q follows linearly, plus the projection's correction
-        hq = jax.lax.cond(jnp.any(fix != 0), lambda: hq - tau * r_raw + _convolve(khat, fix),
+        hq = _sharding.cond(jnp.any(fix != 0), lambda: hq - tau * r_raw + _convolve(khat, fix),
                           lambda: hq - tau * r_raw)
         factor = total / jnp.sum(q_new)
         q_new, hq = q_new * factor, hq * factor
@@ -318,7 +319,7 @@ def _pk_force(khat, h, total, tol, max_iter):
 
     init = (q, _convolve(khat, q), jnp.zeros_like(q), jnp.zeros((), dtype),
             jnp.zeros((), dtype), 0, jnp.asarray(jnp.inf, dtype))
-    q, _, _, _, _, _, err = jax.lax.while_loop(cond, body, init)
+    q, _, _, _, _, _, err = _sharding.while_loop(cond, body, init)
     act = q > 0
     depth = mean_on(_convolve(khat, q) + h, act)
     return q, depth, err <= tol
@@ -386,7 +387,7 @@ def _equilibrium(khat, base, bonded, q0, s0, k00, load: _Load, tol, max_iter, ma
                                         frozen=~act)
             return s1, it1, ok1
 
-        s, it_s, ok_s = jax.lax.cond(done, lambda: (s, 0, jnp.asarray(True)), slope)
+        s, it_s, ok_s = _sharding.cond(done, lambda: (s, 0, jnp.asarray(True)), slope)
         stiffness = jnp.sum(s) / k00 + load.spring
         first_touch = jnp.where(load.load > 0, d_touch + load.load * k00, d_touch)
         d_new = jnp.where(stiffness > 0, d_next + safe_div(res, stiffness), first_touch)
@@ -396,7 +397,7 @@ def _equilibrium(khat, base, bonded, q0, s0, k00, load: _Load, tol, max_iter, ma
 
     init = (load.depth, q0, s0, q0, q0, jnp.asarray(False), 0, jnp.asarray(True),
             jnp.asarray(False), 0)
-    d, _, s, q, hq, no_eq, its, ok, done, _ = jax.lax.while_loop(cond, body, init)
+    d, _, s, q, hq, no_eq, its, ok, done, _ = _sharding.while_loop(cond, body, init)
     return _Equilibrium(q, hq, d, s, its, ok & done, ~no_eq)
 
 
@@ -439,7 +440,7 @@ def _consistent(khat, base, attached, q0, s0, k00, q_crit, adhesive, load, tol, 
     z = jnp.zeros_like(q0)
     init = _Equilibrium(q0, z, load.depth, s0, jnp.asarray(0), jnp.asarray(True),
                         jnp.asarray(True))
-    eq, att, rounds, changed = jax.lax.while_loop(
+    eq, att, rounds, changed = _sharding.while_loop(
         cond, body, (init, attached, jnp.asarray(0), jnp.asarray(True)))
     # the last solve used `att` before the update; if nothing changed it is consistent
     return _Step(eq, att, rounds, eq.converged & ~changed)
@@ -819,14 +820,14 @@ def bem_simulate(
     dtype = ts.dtype
     # the start and the spring are traced values (one compiled program serves a relaxed and a
     # virgin start); displacement control compiles without the Newton loop on the depth
-    dynamic = floats_to_arrays((
+    dynamic = _sharding.on_mesh(floats_to_arrays((
         chain, h, as_float(work_of_adhesion).astype(dtype), ts, inputs, grid,
         jnp.asarray(relaxed_depth is not None),
         as_float(0.0 if relaxed_depth is None else relaxed_depth).astype(dtype),
         jnp.asarray(force is None and stiffness is None),
         as_float(0.0 if stiffness is None else stiffness).astype(dtype),
-    ))
-    sol = _bem_simulate(
+    )))
+    sol = _sharding.compiled(_bem_simulate, _bem_simulate_plain)(
         *dynamic, save_fields, tol, int(max_iter), rounds,
         0 if force is None and stiffness is None else max(int(max_newton), 1), adhesive,
         int(refine_steps))
@@ -875,9 +876,10 @@ def _tree_where(c, a, b):
     return jax.tree_util.tree_map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
-@eqx.filter_jit
-def _bem_simulate(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_control, spring,
-                  save_fields, tol, max_iter, max_rounds, max_newton, adhesive, refine_steps):
+def _bem_simulate_plain(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_control,
+                        spring,
+                        save_fields, tol, max_iter, max_rounds, max_newton, adhesive,
+                        refine_steps):
     r"""One `lax.scan` over the prelude (the relaxed start, or nothing), the samples and the
     bisection steps of the jump-off: the solver appears once in the compiled program."""
     n, m = grid.cells, ts.shape[0]
@@ -919,7 +921,8 @@ def _bem_simulate(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_
                 | jnp.any(contact[:, -1]))
         new = _State(p, step.attached, v1, w1, eq.slope, t1, eq.depth, x1, area > 0)
         out = dict(force=jnp.sum(p) * delta * delta, area=area, edge=edge,
-                   d=jnp.where(eq.exists, eq.depth, jnp.nan), its=eq.cg_iterations,
+                   d=jax.lax.select(eq.exists, eq.depth, jnp.full_like(eq.depth, jnp.nan)),
+                   its=eq.cg_iterations,
                    rounds=step.rounds, ok=step.converged, contact=contact)
         return new, out
 
@@ -937,13 +940,13 @@ def _bem_simulate(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_
         t_ref = c.pre.t + mid * (c.t_end - c.pre.t)
         x_ref = c.pre.x + mid * (c.x_end - c.pre.x)
         # prelude: relax at the depth d0 (an infinite step), or nothing (a depth below touch)
-        t1 = jnp.where(prelude, ts[0], jnp.where(refining, t_ref, ts[i]))
+        t1 = jnp.where(prelude, ts[0], jnp.where(refining, t_ref, _sharding.pick(ts, i)))
         x1 = jnp.where(prelude, jnp.where(relaxed, d0, -grid.extent),
-                       jnp.where(refining, x_ref, inputs[i]))
+                       jnp.where(refining, x_ref, _sharding.pick(inputs, i)))
         dt = jnp.where(prelude, jnp.where(relaxed, jnp.inf, 0.0), t1 - start.t)
         fixed = prelude | displacement_control
         idle = refining & ~c.found
-        new, out = jax.lax.cond(idle, skip, advance, start, t1, dt, x1, fixed)
+        new, out = _sharding.cond(idle, skip, advance, start, t1, dt, x1, fixed)
         sample = ~prelude & ~refining
         lost = sample & c.state.touching & ~new.touching & ~c.found
         st = c.state
@@ -973,7 +976,8 @@ def _bem_simulate(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_
     nan = jnp.full((), jnp.nan, dtype)
     init = _Carry(state0, state0, scalar, scalar, jnp.asarray(False), scalar,
                   jnp.ones((), dtype), jnp.full((4,), jnp.nan, dtype), jnp.asarray(True))
-    final, out = jax.lax.scan(body, init, jnp.arange(1 + m + refine_steps))
+    final, out = _sharding.scan(body, init, jnp.arange(1 + m + refine_steps),
+                                tie=(chain, h, dgamma, ts, inputs, grid, d0, spring))
     touches_edge = jnp.any(out["edge"])  # the prelude included
     out = jax.tree_util.tree_map(lambda y: y[1:1 + m], out)
     force, area = out["force"], out["area"]
@@ -998,3 +1002,6 @@ def _bem_simulate(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displacement_
         stats=dict(cg_iterations=out["its"], rounds=out["rounds"],
                    touches_edge=touches_edge, drive=inputs),
     )
+
+
+_bem_simulate = eqx.filter_jit(_bem_simulate_plain)

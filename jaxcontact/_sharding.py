@@ -23,17 +23,31 @@ the initial carry to all the others (``where(anchor, x, x)`` with one per-lane b
 the carry), so that all of them are batched, and sharded, alike from the first step. The
 values and the loop are unchanged. Only under a mesh with explicit axes.
 
-With these, `retract` and the elastic functions run inside ``jit(vmap(...))`` over inputs
-sharded in either axis mode (`tests/test_sharding.py`). `simulate` runs in automatic mode;
-in explicit mode jax 0.10's batching rule of ``lax.switch`` (the foundation's step branches)
-re-types the branches' outputs on an empty mesh and fails: not yet supported there.
+**Branches.** In explicit mode jax 0.10's batching rule of ``lax.cond``/``lax.switch``
+inside a loop re-types the branches' outputs on an empty mesh and fails the same way.
+`switch` and `cond` evaluate every branch and select the taken one elementwise
+(``lax.select_n``) under a mesh with explicit axes: what ``vmap`` does anyway with a
+per-lane predicate (its batching rule turns the branch into a select of all branches), so a
+vmapped program computes the same values at the same cost. Branches must therefore be safe
+to evaluate when not taken (they are: every caller is vmapped by the sweeps and fits).
+
+**Constants from outside the mesh, nested programs, Python scalars.** An array the caller's
+program closed over (a time grid made before ``jax.set_mesh``) has no mesh; jax 0.10 cannot
+batch a lane-dependent operation of it inside a loop. `on_mesh` replicates such arrays on
+the context mesh at an entry point (the same values); `compiled` traces an entry point's
+body into the caller's program instead of calling its own nested ``jit``, whose batching
+rule fails the same way; a ``jnp.where`` with a bare Python scalar inside a scanned branch
+does too (``lax.select`` with an array of the same type is used there).
+
+With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
+``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).
 """
 
 import jax
 import jax.numpy as jnp
 from jax import lax
 
-__all__ = ["pick", "while_loop"]
+__all__ = ["compiled", "cond", "on_mesh", "pick", "scan", "searchsorted", "switch", "while_loop"]
 
 
 def _explicit_mesh() -> bool:
@@ -61,17 +75,87 @@ def pick(x, i):
     return jnp.sum(picked, axis=i.ndim)
 
 
+def _tie(carry, *others):
+    """`carry` with every element tied to all elements of `carry` and `others` (module
+    docstring): the same values, batched alike."""
+    leaves, tree = jax.tree_util.tree_flatten(carry)
+    arrays = [jnp.asarray(x) for x in leaves]
+    anchor = jnp.zeros((), bool)
+    for x in arrays + [jnp.asarray(y) for y in jax.tree_util.tree_leaves(others)]:
+        anchor = anchor | jnp.any(x != x)  # one boolean per lane, always False
+    return jax.tree_util.tree_unflatten(tree, [jnp.where(anchor, x, x) for x in arrays])
+
+
 def while_loop(cond_fun, body_fun, init_val):
     """`jax.lax.while_loop` with every element of the initial carry tied to the others
     (module docstring): same arguments, same result."""
     if not _explicit_mesh():
         return lax.while_loop(cond_fun, body_fun, init_val)
-    leaves, tree = jax.tree_util.tree_flatten(init_val)
-    arrays = [jnp.asarray(x) for x in leaves]
-    anchor = jnp.zeros((), bool)
-    for x in arrays:  # one boolean per lane that depends on every element (always False)
-        anchor = anchor | jnp.any(x != x)
-    tied = [jnp.where(anchor, x, x) for x in arrays]
-    return lax.while_loop(cond_fun, body_fun, jax.tree_util.tree_unflatten(tree, tied))
+    return lax.while_loop(cond_fun, body_fun, _tie(init_val))
 
 
+def scan(f, init, xs=None, length=None, *, tie=()):
+    """`jax.lax.scan` with every element of the initial carry tied to the others, to the
+    scanned inputs and to `tie` (the values the body closes over that make the carry differ
+    between lanes; module docstring): same arguments, same result."""
+    if not _explicit_mesh():
+        return lax.scan(f, init, xs, length=length)
+    return lax.scan(f, _tie(init, xs, tie), xs, length=length)
+
+
+
+
+def switch(index, branches, *operands):
+    """`jax.lax.switch` (same arguments, same result; `index` clamped to the branches as
+    there); under a mesh with explicit axes every branch is evaluated and the taken one
+    selected (module docstring)."""
+    if not _explicit_mesh():
+        return lax.switch(index, branches, *operands)
+    outs = [branch(*operands) for branch in branches]
+    which = jnp.clip(jnp.asarray(index, jnp.int32), 0, len(branches) - 1)
+    return jax.tree.map(lambda *xs: lax.select_n(which, *xs), *outs)
+
+
+def cond(pred, true_fun, false_fun, *operands):
+    """`jax.lax.cond` (same arguments, same result); under a mesh with explicit axes both
+    branches are evaluated and the taken one selected (module docstring)."""
+    if not _explicit_mesh():
+        return lax.cond(pred, true_fun, false_fun, *operands)
+    return switch(jnp.asarray(pred).astype(jnp.int32), (false_fun, true_fun), *operands)
+
+
+def searchsorted(a, v, side="left"):
+    """`jnp.searchsorted` (same result); under a mesh with explicit axes by comparing `v`
+    with every element of `a` (``method="compare_all"``: elementwise, O(len(a)) per value)
+    instead of the default bisection, a ``lax.scan`` whose carry JAX's batching rule
+    re-types on an empty mesh."""
+    if not _explicit_mesh():
+        return jnp.searchsorted(a, v, side=side)
+    return jnp.searchsorted(a, v, side=side, method="compare_all")
+
+
+def compiled(jitted, plain):
+    """The function to call: `jitted` (its own compiled program, cached), except inside a
+    trace under a mesh with explicit axes, where `plain` is traced into the caller's program
+    instead (the same operations; jax 0.10's batching rule of a nested ``jit`` re-types its
+    outputs on an empty mesh there)."""
+    return plain if _explicit_mesh() else jitted
+
+
+def on_mesh(tree):
+    """`tree` with every array leaf that lives outside the context mesh (a constant the
+    caller's program closed over, created before ``jax.set_mesh``) replicated on that mesh
+    (``jax.sharding.reshard(x, P())``), under a mesh with explicit axes; elsewhere `tree`
+    unchanged. The values are the same; jax 0.10 cannot batch a lane-dependent operation
+    of such a constant inside a loop (``Resource axis ... not found in mesh: ()``)."""
+    if not _explicit_mesh():
+        return tree
+
+    def put(x):
+        if not isinstance(x, jax.Array):
+            return x
+        if not jax.typeof(x).sharding.mesh.empty:
+            return x
+        return jax.sharding.reshard(x, jax.sharding.PartitionSpec())
+
+    return jax.tree_util.tree_map(put, tree)

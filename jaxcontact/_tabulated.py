@@ -34,6 +34,7 @@ import numpy as np
 from jax.lax.linalg import tridiagonal_solve
 from jaxtyping import Array
 
+from . import _sharding
 from ._profiles import (
     AbstractCurvedProfile,
     numerical_contact_radius,
@@ -244,7 +245,7 @@ def _evaluate(kind: str, x, r: Array, f: Array) -> Array:
     if kind == "shape":
         rr = jnp.abs(x)
         s, c2, c3 = _spline_pieces(r, f)
-        j = jnp.clip(jnp.searchsorted(r, rr, side="right") - 1, 0, r.shape[0] - 2)
+        j = jnp.clip(_sharding.searchsorted(r, rr, side="right") - 1, 0, r.shape[0] - 2)
         t = rr - r[j]
         return (f[j] - f[0]) + t * (s[j] + t * (c2[j] + t * c3[j]))
     A, B, C = _slope_coefficients(r, f)

@@ -1,6 +1,8 @@
 """The forward model inside a user's sharded program: ``jit(vmap(f), out_shardings=...)`` over
 inputs sharded on 4 virtual CPU devices, in JAX's automatic and explicit axis modes, gives
-the values of the plain ``vmap`` (`jaxcontact._sharding`). The devices must be set before JAX
+the values of the plain ``vmap`` (`jaxcontact._sharding`): `retract`, the elastic
+functions, `simulate` and `bem_simulate`, each closing over a time grid created before the
+mesh (as a user's program does). The devices must be set before JAX
 starts, so the check runs in a fresh interpreter."""
 
 import os
@@ -40,9 +42,16 @@ SCRIPT = textwrap.dedent('''
         s = jc.simulate(rh(G0), prof, 0.05, ts, disp, grid=16, throw=False)
         return s.force, s.result._value
 
-    cases = [("auto", "retract", f_retract), ("auto", "elastic", f_elastic),
-             ("auto", "simulate", f_simulate), ("explicit", "retract", f_retract),
-             ("explicit", "elastic", f_elastic)]
+    bem_grid = jc.BEMGrid(16, 4e-5)
+
+    def f_bem(G0):
+        s = jc.bem_simulate(rh(G0), prof, 0.05, ts[:6], 0.2 * disp[:6], grid=bem_grid,
+                            throw=False)
+        return s.force, s.result._value
+
+    cases = [(mode, name, f) for mode in ("auto", "explicit")
+             for name, f in (("retract", f_retract), ("elastic", f_elastic),
+                             ("simulate", f_simulate), ("bem", f_bem))]
     for mode, name, f in cases:
         kind = AxisType.Explicit if mode == "explicit" else AxisType.Auto
         mesh = jax.make_mesh((4,), ("b",), axis_types=(kind,))
@@ -66,4 +75,4 @@ def test_forward_model_inside_sharded_jit_vmap(tmp_path):
     out = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True,
                          env=env, timeout=1800)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert out.stdout.count(" ok") == 5, out.stdout
+    assert out.stdout.count(" ok") == 8, out.stdout

@@ -9,6 +9,7 @@ from jax import lax
 
 from .._arms import attached_update, psi
 from .._root import bracketed_root
+from .._sharding import pick, searchsorted
 from .._solvers import (
     golden_section,
     implicit_extremum,
@@ -44,9 +45,9 @@ class _Model(_ModelCore):
         cells1 = self.attached_cells(V1, vf1, a, d1)
         cell = lax.stop_gradient(self.max_criterion(cells1, a)[2])
         cells0 = self.attached_cells(V, vf, a, d0)
-        s_lo0, slope0 = cells0.s_lo[cell], cells0.slope[cell]
-        z_lo = cells0.z_lo[cell]
-        lo, hi = cells0.x_lo[cell], cells0.x_hi[cell]
+        s_lo0, slope0 = pick(cells0.s_lo, cell), pick(cells0.slope, cell)
+        z_lo = pick(cells0.z_lo, cell)
+        lo, hi = pick(cells0.x_lo, cell), pick(cells0.x_hi, cell)
 
         def coefficients(theta):
             s = jnp.asarray(theta * dt) / self.tau
@@ -63,7 +64,7 @@ class _Model(_ModelCore):
             xs = jnp.where(beta > 0, self.geo.stationary(jnp.where(beta > 0, q, 1.0), lo, hi), hi)
             cand = lax.stop_gradient(jnp.stack([lo, hi, xs]))
             vals = self.cell_R(cand, alpha, beta)
-            return cand[jnp.argmax(vals)]
+            return pick(cand, jnp.argmax(vals))
 
         def rmax(theta):
             alpha, beta, _, _ = coefficients(theta)
@@ -83,8 +84,9 @@ class _Model(_ModelCore):
         cells = self.attached_cells(Va, vfa, a, d)
         x_fold = self._fold_radius(cells, a, d, x_cell)
         n_last = jnp.maximum(jnp.sum(cells.valid) - 1, 0)
-        c = jnp.clip(jnp.searchsorted(self.x, x_fold, side="right") - 1, 0, n_last)
-        s_edge = cells.s_lo[c] + cells.slope[c] * (self.geo.zeta(x_fold) - cells.z_lo[c])
+        c = jnp.clip(searchsorted(self.x, x_fold, side="right") - 1, 0, n_last)
+        s_edge = pick(cells.s_lo, c) + pick(cells.slope, c) * (
+            self.geo.zeta(x_fold) - pick(cells.z_lo, c))
         F = self.force(Va, s_edge - self.geo.g(x_fold), x_fold, d)
         return JumpOff(time=t0 + theta * dt, displacement=d, radius=x_fold, force=F, valid=valid)
 
@@ -103,16 +105,16 @@ class _Model(_ModelCore):
         Gs = cells.s_lo @ self.Gk
         j = jnp.argmax(R_nodes)
         m = jnp.maximum(jnp.sum(valid) - 1, 0)
-        Gs_front = jnp.sum(self.Gk * cells.s_hi[m])
+        Gs_front = jnp.sum(self.Gk * pick(cells.s_hi, m))
         jl = jnp.maximum(j - 1, 0)
         jr = jnp.minimum(j + 1, self.n_nodes - 1)
-        right_is_node = valid[jr] & (jr > j)
-        x0 = self.x[jl]
-        x2 = jnp.where(right_is_node, self.x[jr], a)
-        z0, z1 = self.zx[jl], self.zx[j]
-        z2 = jnp.where(right_is_node, self.zx[jr], self.geo.zeta(a))
-        S0, S1 = Gs[jl], Gs[j]
-        S2 = jnp.where(right_is_node, Gs[jr], Gs_front)
+        right_is_node = pick(valid, jr) & (jr > j)
+        x0 = pick(self.x, jl)
+        x2 = jnp.where(right_is_node, pick(self.x, jr), a)
+        z0, z1 = pick(self.zx, jl), pick(self.zx, j)
+        z2 = jnp.where(right_is_node, pick(self.zx, jr), self.geo.zeta(a))
+        S0, S1 = pick(Gs, jl), pick(Gs, j)
+        S2 = jnp.where(right_is_node, pick(Gs, jr), Gs_front)
         ok = (j >= 1) & (z2 > z1) & (z1 > z0)
         b1, c2 = quadratic_newton_form(z0, z1, z2, S0, S1, S2, ok)
 
@@ -147,11 +149,11 @@ class _Model(_ModelCore):
         n_last = jnp.maximum(jnp.sum(valid) - 1, 0)
 
         def field(x):
-            c = jnp.clip(jnp.searchsorted(self.x, x, side="right") - 1, 0, n_last)
-            hc = x - self.x[c]
-            s_x = cells.s_lo[c] + cells.slope[c] * (self.geo.zeta(x) - self.zx[c])
-            part = self.geo.zeta_integral(x) - self.Zx[c] - self.zx[c] * hc
-            J = cum[c] + cells.s_lo[c] * hc + cells.slope[c] * part
+            c = jnp.clip(searchsorted(self.x, x, side="right") - 1, 0, n_last)
+            hc = x - pick(self.x, c)
+            s_x = pick(cells.s_lo, c) + pick(cells.slope, c) * (self.geo.zeta(x) - pick(self.zx, c))
+            part = self.geo.zeta_integral(x) - pick(self.Zx, c) - pick(self.zx, c) * hc
+            J = pick(cum, c) + pick(cells.s_lo, c) * hc + pick(cells.slope, c) * part
             return s_x, J
 
         return field, cells
@@ -257,23 +259,24 @@ class _Model(_ModelCore):
         den = self.Gg - P
         S_nodes = (cells.s_lo * e[None, :]) @ self.Gk
         m = jnp.maximum(jnp.sum(cells.valid) - 1, 0)  # last node in contact
-        S_front = jnp.sum(self.Gk * e * cells.s_hi[m])
+        S_front = jnp.sum(self.Gk * e * pick(cells.s_hi, m))
         xs = lax.stop_gradient(fallback)
-        c = jnp.clip(jnp.searchsorted(self.x, xs, side="right") - 1, 0, m)
+        c = jnp.clip(searchsorted(self.x, xs, side="right") - 1, 0, m)
         n1 = self.n_nodes - 1
-        up_node = cells.up_node[c]
-        z_up = jnp.where(up_node, self.zx[jnp.minimum(c + 1, n1)], self.geo.zeta(a))
-        S_up = jnp.where(up_node, S_nodes[jnp.minimum(c + 1, n1)], S_front)
-        x_up = jnp.where(up_node, self.x[jnp.minimum(c + 1, n1)], a)
+        up_node = pick(cells.up_node, c)
+        z_up = jnp.where(up_node, pick(self.zx, jnp.minimum(c + 1, n1)), self.geo.zeta(a))
+        S_up = jnp.where(up_node, pick(S_nodes, jnp.minimum(c + 1, n1)), S_front)
+        x_up = jnp.where(up_node, pick(self.x, jnp.minimum(c + 1, n1)), a)
         # springs c-1, c and the upper end of cell c; c-2, c-1, c if that end is very close
         # to spring c (the front just past it)
-        short = (z_up - self.zx[c]) < 0.1 * (self.zx[c] - self.zx[jnp.maximum(c - 1, 0)])
+        z_c = pick(self.zx, c)
+        short = (z_up - z_c) < 0.1 * (z_c - pick(self.zx, jnp.maximum(c - 1, 0)))
         i0 = jnp.where(short, c - 2, c - 1)
         j0, j1 = jnp.maximum(i0, 0), jnp.maximum(i0 + 1, 0)
-        z0, z1 = self.zx[j0], self.zx[j1]
-        z2 = jnp.where(short, self.zx[c], z_up)
-        S0, S1 = S_nodes[j0], S_nodes[j1]
-        S2 = jnp.where(short, S_nodes[c], S_up)
+        z0, z1 = pick(self.zx, j0), pick(self.zx, j1)
+        z2 = jnp.where(short, pick(self.zx, c), z_up)
+        S0, S1 = pick(S_nodes, j0), pick(S_nodes, j1)
+        S2 = jnp.where(short, pick(S_nodes, c), S_up)
         ok = (i0 >= 0) & (z2 > z1) & (z1 > z0)
         b1, c2 = quadratic_newton_form(z0, z1, z2, S0, S1, S2, ok)
         dzeta = jax.grad(self.geo.zeta)
@@ -289,8 +292,8 @@ class _Model(_ModelCore):
             Fp = 8.0 * (Fp - (dR - d0) * P - x * P * dRp)
             return dRp + Fp / k
 
-        lo = lax.stop_gradient(self.x[j0])
-        hi = lax.stop_gradient(jnp.where(short, self.x[c], x_up))
+        lo = lax.stop_gradient(pick(self.x, j0))
+        hi = lax.stop_gradient(jnp.where(short, pick(self.x, c), x_up))
         xq = newton_iterate(slope, xs, lo, hi, steps=8)
         # one Newton step with derivatives: the implicit derivative of the minimiser
         return implicit_extremum(slope, xq, lo, hi, maximum=False, ok=ok, fallback=fallback)

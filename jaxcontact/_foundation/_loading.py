@@ -11,6 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._root import bracketed_root, newton_root
+from .._sharding import pick
 from .._solvers import as_float, quadratic_at, quadratic_newton_form, quadratic_vertex, safe_div
 from .._validate import Constraint
 from ._state import JumpOff
@@ -146,9 +147,9 @@ class CompliantLoading(AbstractLoading):
         refined = jumpoff.valid
         k = self.stiffness
         i_prev = jnp.maximum(i_j - 1, 0)
-        inst = model.refine_instability(pre, u[i_prev], u[i_j], k)
+        inst = model.refine_instability(pre, pick(u, i_prev), pick(u, i_j), k)
         idx = jnp.maximum(i_j - jnp.arange(3, 0, -1), 0)  # i_j-3, i_j-2, i_j-1
-        a3, z3, f3 = radius[idx], u[idx], force[idx]
+        a3, z3, f3 = pick(radius, idx), pick(u, idx), pick(force, idx)
         usable = (i_j >= 3) & jnp.all(a3 > 0) & (a3[0] > a3[1]) & (a3[1] > a3[2])
 
         def parabola(y):
@@ -167,18 +168,21 @@ class CompliantLoading(AbstractLoading):
             return quadratic_at(a_v, a3[2], a3[1], y[2], b, c)
 
         z_v, f_v = at_vertex(z3), at_vertex(f3)
-        dz = u[i_j] - z3[2]
+        dz = pick(u, i_j) - z3[2]
         frac = jnp.clip(safe_div(z_v - z3[2], dz), 0.0, 1.0)
         # an instability (no equilibrium left, the vertex) or the criterion itself (stiff
         # spring: the refined root as under displacement control), whichever the receding
         # front reaches first
         use_v = ok_c & (jnp.logical_not(refined) | (a_v > j_rad))
         j_time = jnp.where(
-            use_v, jnp.where(ok_c, ts[idx[2]] + frac * (ts[i_j] - ts[idx[2]]), ts[i_j]), j_time
+            use_v,
+            jnp.where(ok_c, pick(ts, idx[2]) + frac * (pick(ts, i_j) - pick(ts, idx[2])),
+                      pick(ts, i_j)),
+            j_time,
         )
         j_rad = jnp.where(use_v, a_v, j_rad)
-        j_force = jnp.where(use_v, jnp.where(ok_c, f_v, force[idx[2]]), j_force)
-        j_disp = jnp.where(use_v, jnp.where(ok_c, z_v - f_v / k, d[idx[2]]), j_disp)
+        j_force = jnp.where(use_v, jnp.where(ok_c, f_v, pick(force, idx[2])), j_force)
+        j_disp = jnp.where(use_v, jnp.where(ok_c, z_v - f_v / k, pick(d, idx[2])), j_disp)
         use_i = inst.valid & safe & (i_j >= 1)
         return JumpOff(
             time=jnp.where(use_i, inst.time, j_time),

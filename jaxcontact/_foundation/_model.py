@@ -5,8 +5,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import lax
 
+from .. import _sharding
 from .._arms import attached_update
 from .._root import concave_root
+from .._sharding import pick
 from .._solvers import safe_div
 from ._state import Cells, FoundationState, StepBranch, StepOutput
 
@@ -126,21 +128,21 @@ class _ModelCore:
         valid = cells.valid
         R_nodes = jnp.where(valid, cells.R_nodes, -jnp.inf)
         m = jnp.maximum(jnp.sum(valid) - 1, 0)  # last contact node; its cell ends at the front
-        R_front = self.cell_R(a, cells.alpha[m], cells.beta[m])
+        R_front = self.cell_R(a, pick(cells.alpha, m), pick(cells.beta, m))
         j_star = jnp.argmax(R_nodes)
-        at_front = R_front >= R_nodes[j_star]
+        at_front = R_front >= pick(R_nodes, j_star)
         c1 = jnp.where(at_front, m, jnp.maximum(j_star - 1, 0))
         c2 = jnp.where(at_front, m, j_star)
 
         def cell_max(j):
-            lo, hi = cells.x_lo[j], cells.x_hi[j]
-            al, be = cells.alpha[j], cells.beta[j]
+            lo, hi = pick(cells.x_lo, j), pick(cells.x_hi, j)
+            al, be = pick(cells.alpha, j), pick(cells.beta, j)
             q = safe_div(self.c, 2.0 * be, jnp.inf)
             xs = jnp.where(be > 0, self.geo.stationary(jnp.where(be > 0, q, 1.0), lo, hi), hi)
             cand = lax.stop_gradient(jnp.stack([lo, hi, xs]))
             vals = self.cell_R(cand, al, be)
             i = jnp.argmax(vals)
-            return vals[i], cand[i]
+            return pick(vals, i), pick(cand, i)
 
         r1, x1 = cell_max(c1)
         r2, x2 = cell_max(c2)
@@ -208,10 +210,10 @@ class _ModelCore:
             stop = (x_hi_n > a) & (phi_hi < 0)
             exists = jnp.any(stop)
             j = jnp.argmax(stop)
-            frac = safe_div(phi_lo[j], phi_lo[j] - phi_hi[j])
+            frac = safe_div(pick(phi_lo, j), pick(phi_lo, j) - pick(phi_hi, j))
             frac = jnp.clip(jnp.where(exists, frac, 1.0), 0.0, 1.0)
-            z_star = z_lo[j] + frac * (z_hi[j] - z_lo[j])
-            a_root = self.geo.zeta_inverse(z_star, x_lo[j], x_hi_n[j])
+            z_star = pick(z_lo, j) + frac * (pick(z_hi, j) - pick(z_lo, j))
+            a_root = self.geo.zeta_inverse(z_star, pick(x_lo, j), pick(x_hi_n, j))
             a_new = jnp.where(exists, a_root, self.L)
             # springs touched during the step: free until theta, attached afterwards
             phi0 = d0 - gx - V @ arm_ratio
@@ -224,7 +226,8 @@ class _ModelCore:
                 (x < a)[:, None], V_att, jnp.where((x < a_new)[:, None], V_touch, V_free)
             )
             # the contact covers the whole grid (the flat punch): the edge is the last node
-            vf_new = jnp.where(exists, v_lo[j] + frac * (v_hi[j] - v_lo[j]), V_touch[-1])
+            v_j = pick(v_lo, j)
+            vf_new = jnp.where(exists, v_j + frac * (pick(v_hi, j) - v_j), V_touch[-1])
             nan = jnp.asarray(jnp.nan, dtype=a.dtype)
             E_new = jnp.stack([vf_new, vf_new])
             return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jnp.asarray(False),
@@ -237,15 +240,15 @@ class _ModelCore:
             ok_nodes = valid & (cells.R_nodes >= 0)
             idx = jnp.arange(self.n_nodes)
             m_R = jnp.max(jnp.where(ok_nodes, idx, -1))
-            x_mR = jnp.where(m_R >= 0, x[jnp.maximum(m_R, 0)], -jnp.inf)
+            x_mR = jnp.where(m_R >= 0, pick(x, jnp.maximum(m_R, 0)), -jnp.inf)
             use_xmax = (R_max >= 0) & (x_max > x_mR)
             cell = jnp.where(use_xmax, c_max, jnp.maximum(m_R, 0))
             lo = jnp.where(use_xmax, x_max, x_mR)
-            hi = cells.x_hi[cell]
+            hi = pick(cells.x_hi, cell)
             jump = (R_max < 0) | force_detach
             lo = jnp.where(jump, 0.25 * a, lo)
             hi = jnp.where(jump, 0.75 * a, hi)
-            al, be = cells.alpha[cell], cells.beta[cell]
+            al, be = pick(cells.alpha, cell), pick(cells.beta, cell)
             mid = 0.5 * (lo + hi)
 
             def resid(xx):
@@ -255,8 +258,8 @@ class _ModelCore:
 
             root = concave_root(resid, lo, hi, steps=_ROOT_STEPS)
             a_new = jnp.where(jump, 0.0, root)
-            s_edge = cells.s_lo[cell] + cells.slope[cell] * (
-                self.geo.zeta(root) - cells.z_lo[cell]
+            s_edge = pick(cells.s_lo, cell) + pick(cells.slope, cell) * (
+                self.geo.zeta(root) - pick(cells.z_lo, cell)
             )
             # springs released during the step: attached until theta, free afterwards.
             # Jump-off: theta from the edge criterion at t0 and max R at t1 (linear in time).
@@ -276,7 +279,7 @@ class _ModelCore:
             return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jump,
                               theta_jump=theta_jump, overflow=jnp.asarray(False))
 
-        new = lax.switch(branch, (pinned, advancing, receding), None)
+        new = _sharding.switch(branch, (pinned, advancing, receding), None)
         a_new = new.radius
         F = jnp.where(a_new > 0, self.force(new.nodes, new.edge[0], a_new, d1), 0.0)
         out = StepOutput(

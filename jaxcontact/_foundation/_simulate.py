@@ -9,10 +9,12 @@ import numpy as np
 from jax import lax
 from jaxtyping import ArrayLike, Float
 
+from .. import _sharding
 from .._method import AbstractMethod, ExactUpdate
 from .._probes import check_depth_limit, depth_limit
 from .._profiles import AbstractProfile
 from .._rheology import AbstractRheology
+from .._sharding import pick
 from .._solution import (
     RESULTS,
     ContactSolution,
@@ -163,14 +165,15 @@ def simulate(
     # one compiled program serves every call with the same configuration (types, static
     # options, shapes), whatever the parameter values
     dtype = float_dtype(rheology, profile, work_of_adhesion, ts, u, loading, grid)
-    rheology, profile, work_of_adhesion, ts, u, loading, grid = cast_floats(
+    rheology, profile, work_of_adhesion, ts, u, loading, grid = _sharding.on_mesh(cast_floats(
         (rheology, profile, as_float(work_of_adhesion), ts, u, loading, grid), dtype
-    )
-    sol = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
+    ))
+    run = _sharding.compiled(_simulate_jit, _simulate)
+    sol = run(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
                         check_plausibility)
     if estimate_error:
         coarse = FoundationGrid(cells=max(grid.cells // 2, 2), depth=grid.depth)
-        sol_c = _simulate_jit(rheology, profile, work_of_adhesion, ts, u, loading, coarse,
+        sol_c = run(rheology, profile, work_of_adhesion, ts, u, loading, coarse,
                               method, check_plausibility)
         # samples where one grid has jumped off and the other not are left out: near the
         # fold the front moves as sqrt(t* - t) and any shift of t* is a large force jump
@@ -298,7 +301,7 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
                          edge_at=vf0, radius_at=a0)
     carry0 = _Carry(state=state0, jumpoff_step=pre0, found=jnp.asarray(False), stiffness=zero,
                     min_pair=pair0, min_force=inf)
-    carry_end, out = lax.scan(body, carry0, (t_prev, ts, u_prev, u, P_all))
+    carry_end, out = _sharding.scan(body, carry0, (t_prev, ts, u_prev, u, P_all))
     pre, found, min_pair = carry_end.jumpoff_step, carry_end.found, carry_end.min_pair
     d, force, radius, jumped = out.depth, out.force, out.radius, out.jumped
 
@@ -335,21 +338,21 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
     i_m = jnp.argmin(f_masked)
     n_s = ts.shape[0]
     any_contact = jnp.any(in_c)
-    f_sample = jnp.where(any_contact, f_masked[i_m], 0.0)
+    f_sample = jnp.where(any_contact, pick(f_masked, i_m), 0.0)
     im1, ip1 = jnp.maximum(i_m - 1, 0), jnp.minimum(i_m + 1, n_s - 1)
     before = (i_m > 0) & any_contact
     after = (i_m < n_s - 1) & any_contact
-    a_after = jnp.where(found & (i_j == i_m + 1), jumpoff_radius, radius[ip1])
+    a_after = jnp.where(found & (i_j == i_m + 1), jumpoff_radius, pick(radius, ip1))
     # the two steps as a batch of two (one copy of the dense output in the program)
     steps_pre = StepStart(
         nodes=jnp.stack([min_pair.nodes_before, min_pair.nodes_at]),
         edge_spring=jnp.stack([min_pair.edge_before, min_pair.edge_at]),
         radius=jnp.stack([jnp.where(before, min_pair.radius_before, 0.0),
                           jnp.where(after, min_pair.radius_at, 0.0)]),
-        t0=jnp.stack([ts[im1], ts[i_m]]),
-        t1=jnp.stack([ts[i_m], ts[ip1]]),
-        d0=jnp.stack([jnp.where(i_m > 0, d[im1], 0.0), d[i_m]]),
-        d1=jnp.stack([d[i_m], d[ip1]]),
+        t0=jnp.stack([pick(ts, im1), pick(ts, i_m)]),
+        t1=jnp.stack([pick(ts, i_m), pick(ts, ip1)]),
+        d0=jnp.stack([jnp.where(i_m > 0, pick(d, im1), 0.0), pick(d, i_m)]),
+        d1=jnp.stack([pick(d, i_m), pick(d, ip1)]),
     )
     ends = jnp.stack([jnp.where(before, min_pair.radius_at, 0.0),
                       jnp.where(after, a_after, 0.0)])

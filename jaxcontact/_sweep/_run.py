@@ -29,8 +29,10 @@ similar sizes share one compiled program).
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import jax
@@ -42,9 +44,14 @@ from .._validate import plausibility_checks, unchecked
 
 __all__ = ["run_points", "default_precision", "chunk_size_for", "SUMMARY_FIELDS", "CURVE_FIELDS"]
 
-# curves per device and compiled call at most: a chunk of relaxed summaries needs < 1 KiB per
-# curve, 4 GiB at this size (GPUs: the budget is half the device memory)
-_MAX_CHUNK = 2**22
+# curves per device and compiled call at most (GPUs: the budget is half the device memory):
+# smaller chunks overlap the host's preparation of the next ones with the device's work
+# (benchmarks/results/device.md: 2^20 faster than 2^22 and 2^23 for relaxed summaries)
+_MAX_CHUNK = 2**20
+
+# chunks whose parameter columns are prepared ahead, in threads (numpy releases the GIL in
+# its array operations, so they run side by side and alongside the device)
+_HOST_THREADS = max(1, min(8, (os.cpu_count() or 1)))
 
 
 def default_precision() -> str:
@@ -203,12 +210,29 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
         fn, sharding = _compiled(model, material, profile, names, curves, devices, dtype.name)
         bar = _Progress(n_points, n_chunks, progress and jax.process_index() == 0)
 
-        def launch(i):
+        def prepare(i):
             lo = i * chunk
             hi = min(lo + chunk, n_points)
             host = np.empty((chunk, len(names)), dtype)
             host[: hi - lo] = columns(lo, hi)
             host[hi - lo:] = host[0]  # pad with copies of the chunk's first point
+            return host
+
+        # the columns of the next chunks are prepared ahead in threads (at most
+        # `_HOST_THREADS` chunks of host memory waiting)
+        pool = ThreadPoolExecutor(_HOST_THREADS) if n_chunks > 1 else None
+        ahead: dict = {}
+
+        def launch(i):
+            if pool is None:
+                host = prepare(i)
+            else:
+                for k in range(i, min(i + _HOST_THREADS, n_chunks)):
+                    if k not in ahead:
+                        ahead[k] = pool.submit(prepare, k)
+                host = ahead.pop(i).result()
+            lo = i * chunk
+            hi = min(lo + chunk, n_points)
             if jax.process_count() == 1:
                 return fn(jax.device_put(host, sharding)), lo, hi
             cols = jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
@@ -222,31 +246,35 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
                 summaries[:, lo:hi] = packed[:, : hi - lo]
             waiting.clear()
 
-        pending = None
-        done = 0
-        for i in range(n_chunks + 1):
-            nxt = launch(i) if i < n_chunks else None  # dispatched asynchronously
-            if pending is not None:
-                (packed, curve_dev), lo, hi = pending
-                # at most two chunks in flight (this one and the next, just dispatched): more
-                # would run side by side on the CPU and leave its caches (1.8x slower at 10^5
-                # points); the summaries stay on the device until `flush`
-                packed.block_until_ready()
-                waiting.append((packed, lo, hi))
-                if curves:
-                    host_curves = _fetch(curve_dev)  # overlaps the next chunk's computation
-                    for field, value in host_curves.items():
-                        if field not in curve_out:
-                            curve_out[field] = np.empty((n_points,) + value.shape[1:],
-                                                        value.dtype)
-                        curve_out[field][lo:hi] = value[: hi - lo]
-                if curves or len(waiting) * packed.nbytes >= _FETCH_BYTES:
-                    flush()
-                done = hi
-                bar.update(i, done)
-            pending = nxt
-        if waiting:
-            flush()
+        try:
+            pending = None
+            done = 0
+            for i in range(n_chunks + 1):
+                nxt = launch(i) if i < n_chunks else None  # dispatched asynchronously
+                if pending is not None:
+                    (packed, curve_dev), lo, hi = pending
+                    # at most two chunks in flight (this one and the next, just dispatched): more
+                    # would run side by side on the CPU and leave its caches (1.8x slower at 10^5
+                    # points); the summaries stay on the device until `flush`
+                    packed.block_until_ready()
+                    waiting.append((packed, lo, hi))
+                    if curves:
+                        host_curves = _fetch(curve_dev)  # overlaps the next chunk's computation
+                        for field, value in host_curves.items():
+                            if field not in curve_out:
+                                curve_out[field] = np.empty((n_points,) + value.shape[1:],
+                                                            value.dtype)
+                            curve_out[field][lo:hi] = value[: hi - lo]
+                    if curves or len(waiting) * packed.nbytes >= _FETCH_BYTES:
+                        flush()
+                    done = hi
+                    bar.update(i, done)
+                pending = nxt
+            if waiting:
+                flush()
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
         bar.update(n_chunks, n_points)
     return summaries, curve_out, dict(chunk_size=chunk, chunks=n_chunks, devices=n_dev,
                                       processes=jax.process_count())

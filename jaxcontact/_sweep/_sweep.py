@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime
 import functools
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -13,7 +14,7 @@ from .._validate import PLAUSIBLE, check_plausible, plain, plausibility_enabled
 from .._version import __version__
 from ._models import _MIN_TENSION_SAMPLES, AbstractSweepModel, RelaxedStart
 from ._parameters import INVALID_REASONS, parameter_info, parse_spec, range_text, scale_factors
-from ._run import SUMMARY_FIELDS, default_precision, run_points
+from ._run import _HOST_THREADS, SUMMARY_FIELDS, default_precision, run_points
 
 __all__ = ["sweep", "SUMMARIES"]
 
@@ -276,8 +277,17 @@ def sweep(
         status[~good] = int(RESULTS.invalid_input._value)
     failed = (status != int(RESULTS.detached._value)) & (status != int(RESULTS.in_contact._value))
     any_failed = bool(failed.any())
-    # one float64 block for the summaries, scaled in place (no temporaries per field)
-    block = packed[: len(SUMMARIES)].astype(np.float64, copy=packed.dtype != np.float64)
+    # each summary in float64 and its SI unit in one pass, the fields side by side in
+    # threads (numpy releases the GIL; no temporaries per field)
+    def si(item):
+        field, kind, _ = item
+        x = np.multiply(packed[row[field]], units[kind], dtype=np.float64)
+        if any_failed:
+            x[failed] = np.nan
+        return x
+
+    with ThreadPoolExecutor(min(len(SUMMARIES), _HOST_THREADS)) as pool:
+        scaled = dict(zip(SUMMARIES, pool.map(si, SUMMARIES.values()), strict=True))
     coords = {}
     for name, values in spec.coords.items():
         info = parameter_info(name)
@@ -290,12 +300,9 @@ def sweep(
         info = parameter_info(name)
         coords[name] = ((), value, dict(units=info.unit, long_name=info.long_name + " (fixed)"))
     data = {}
-    for var, (field, kind, meaning) in SUMMARIES.items():
-        x = block[row[field]]
-        np.multiply(x, units[kind], out=x)
-        if any_failed:
-            x[failed] = np.nan
-        data[var] = (dims, x.reshape(spec.shape), dict(units=_UNITS[kind], long_name=meaning))
+    for var, (_, kind, meaning) in SUMMARIES.items():
+        data[var] = (dims, scaled[var].reshape(spec.shape),
+                     dict(units=_UNITS[kind], long_name=meaning))
     data["status"] = (dims, status.reshape(spec.shape), _status_attrs())
     # the separation work's sampling error (the history model; 0 for the exact relaxed start)
     work = data["separation_work_J"][1]

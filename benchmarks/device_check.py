@@ -6,7 +6,7 @@ tables that need a GPU (issues: identification at scale, sweeps at device speed)
 Prints markdown rows (warm medians of `--repeats` calls after one cold call):
 `fitting.fit_each` on the synthetic relaxed-start map of `bench_fit_each.py` (curves/s, the
 per-stage split); `jc.sweep` relaxed-start summaries at 10^4..`--sweep-max` points in
-float32 and float64 (curves/s); full-history sweeps at 32,768 curves in float32. Runs on
+float32 and float64 (curves/s); full-history sweeps at `--history` curves in float32. Runs on
 the CPU too (smaller sizes), which is how it is smoke-tested.
 """
 
@@ -45,7 +45,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fit-curves", type=int, default=256)
     ap.add_argument("--sweep-max", type=int, default=10_000_000)
-    ap.add_argument("--history", type=int, default=32_768)
+    ap.add_argument("--history", default="32768,131072",
+                    help="curves of the full-history sweeps, comma-separated")
     ap.add_argument("--repeats", type=int, default=2)
     args = ap.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
@@ -82,14 +83,15 @@ def main(argv=None):
 
     print("\n| history sweep curves | precision | warm [s] | curves/s |\n"
           "| --- | --- | --- | --- |", flush=True)
-    m = args.history
-    grid = {"G0": 1e6, "G1": np.geomspace(1e5, 1e6, 8), "eta1": 1e4, "work_of_adhesion": 0.05,
-            "R": 1e-2, "depth": 1e-4, "velocity": np.geomspace(1e-5, 1e-2, m // 8),
-            "hold": 1.0}
-    cold, warm, ds = timed(lambda: jc.sweep(grid, model=jc.ApproachHoldLift(samples=2000),
-                                            precision="float32", progress=False),
-                                  args.repeats)
-    print(f"| {m:,} | float32 | {warm:.3f} | {m / warm:.3g} | (cold {cold:.1f} s)", flush=True)
+    for m in (int(x) for x in str(args.history).split(",")):
+        grid = {"G0": 1e6, "G1": np.geomspace(1e5, 1e6, 8), "eta1": 1e4,
+                "work_of_adhesion": 0.05, "R": 1e-2, "depth": 1e-4,
+                "velocity": np.geomspace(1e-5, 1e-2, m // 8), "hold": 1.0}
+        cold, warm, ds = timed(lambda grid=grid: jc.sweep(
+            grid, model=jc.ApproachHoldLift(samples=2000), precision="float32",
+            progress=False), args.repeats)
+        print(f"| {m:,} | float32 | {warm:.3f} | {m / warm:.3g} | (cold {cold:.1f} s)",
+              flush=True)
 
 
 if __name__ == "__main__":

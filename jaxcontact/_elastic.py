@@ -21,7 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._profiles import AbstractProfile, front_displacement, hess_coefficient
+from ._criteria import hess_coefficient
+from ._profiles import AbstractProfile, front_displacement
 from ._solution import RESULTS, fold_results, is_error, raise_if_error
 from ._solvers import as_float, cast_floats, float64_scope, float_dtype
 from ._validate import (

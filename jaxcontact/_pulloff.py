@@ -55,6 +55,7 @@ from jax import lax
 from jaxtyping import ArrayLike, Float
 
 from ._arms import phi
+from ._criteria import relaxed_front_coefficient
 from ._method import AbstractMethod, DiffraxODE, ExactUpdate
 from ._probes import check_depth_limit, depth_limit
 from ._profiles import AbstractProfile, front_displacement
@@ -303,7 +304,7 @@ def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact
     d_eff = d + glass_ratio * jnp.sum(w, axis=-1)
 
     # ---- the front -----------------------------------------------------------------------
-    c = jnp.sqrt(0.5 * jnp.pi * dgamma * G_g) / G_inf
+    c = relaxed_front_coefficient(dgamma, G_g, G_inf)
     a_fold = profile.critical_radius(c, 0.5)
     a_fc = profile.critical_radius(c, 1.5)
     h_pin = front_displacement(profile, a0, c)

@@ -81,6 +81,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._arms import psi_relative
+from .._criteria import relaxed_front_coefficient
 from .._elastic import profile_radius
 from .._foundation import FoundationGrid, simulate
 from .._profiles import front_displacement
@@ -128,7 +129,7 @@ class _Front(eqx.Module):
 def _front_constants(rheology, profile, work_of_adhesion) -> _Front:
     G_inf, G, tau = prony_arrays(rheology)
     G_g = G_inf + jnp.sum(G)
-    c = jnp.sqrt(0.5 * jnp.pi * work_of_adhesion * G_g) / G_inf
+    c = relaxed_front_coefficient(work_of_adhesion, G_g, G_inf)
     one = jnp.ones_like(G_inf)
     # the touch radius g(a0) = d0 = 1, rounded up by a few ulp so that g(a0) >= d0 also after
     # round-off (retract flags a lift whose start lies beyond g(a0) as an advancing contact,

@@ -37,8 +37,9 @@ Flags (:data:`FLAGS`; each with a message naming the numbers):
   offset "at a bound", while the flag names the misfit where it happens.
 - ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
   gives the reason (the step limit, or a stop without progress) and what to try.
-- ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`) is
-  below :data:`TABOR_JKR_MIN`: the surface forces' range is not small against the elastic
+- ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`),
+  determined (status "ok"), is below :data:`TABOR_JKR_MIN`: the surface forces' range is
+  not small against the elastic
   neck at the contact edge, and the model's JKR-limit criterion (adhesion of vanishing
   range) overestimates the neck and the pull-off.
 
@@ -312,7 +313,9 @@ def assess(result, *, max_steps: int | None = None) -> list[str]:
                         result.radius, result.names)
     if tabor is not None:
         result.derived.append(tabor)
-        if math.isfinite(tabor["value"]) and tabor["value"] < TABOR_JKR_MIN:
+        # only a determined mu: with the work of adhesion not determined (e.g. bounded only
+        # from below, no curve detaches) mu is not known to be small
+        if tabor["status"] == "ok" and tabor["value"] < TABOR_JKR_MIN:
             flags["outside_jkr_limit"] = (
                 f"Tabor's parameter mu = {tabor['value']:.3g} (< {TABOR_JKR_MIN:g}; R = "
                 f"{result.radius:.3g} m, z0 = {jc.TABOR_SEPARATION:.3g} m, E* = 4 G_glass): "

@@ -690,6 +690,13 @@ def test_tabor_parameter_reported_with_its_error_and_flagged_when_small(noisy_fi
     assert mu_small == pytest.approx(mu["value"] * (1e-12 / R) ** (1 / 3), rel=1e-9)
     assert mu_small < 5 and "outside_jkr_limit" in small.flags
     assert any("Tabor" in m and f"{mu_small:.3g}" in m for m in small.warnings)
+    # ... but not where the work of adhesion is not determined (mu then not known to be small)
+    status = ["not determined" if n == "work_of_adhesion" else s
+              for n, s in zip(res.names, res.status, strict=True)]
+    vague = dataclasses.replace(res, radius=1e-12, warnings=[], derived=[], status=status)
+    fitting._quality.assess(vague)
+    assert "outside_jkr_limit" not in vague.flags
+    assert {d["name"]: d for d in vague.derived}["tabor_mu"]["status"] == "not determined"
     # no radius of curvature (e.g. a cone): not defined, not a number
     cone = fitting._quality.tabor_entry(res.spec, res.values, res.covariance, res.status,
                                         None, res.names)

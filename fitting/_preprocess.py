@@ -55,6 +55,8 @@ import math
 
 import numpy as np
 
+from jaxcontact._solvers import golden_section_host
+
 from ._curve import ContactPoint, Curve, DataError
 
 __all__ = ["preprocess"]
@@ -112,20 +114,9 @@ def _fit_power_law_contact(p, fb, n_exp, lo, hi):
     grid = np.linspace(lo, hi, 401)
     vals = np.array([sse(x) for x in grid])
     b = int(np.argmin(vals))
-    a_, c_ = grid[max(b - 1, 0)], grid[min(b + 1, len(grid) - 1)]
-    gr = (math.sqrt(5.0) - 1.0) / 2.0
-    x1, x2 = c_ - gr * (c_ - a_), a_ + gr * (c_ - a_)
-    f1, f2 = sse(x1), sse(x2)
-    for _ in range(60):
-        if f1 < f2:
-            c_, x2, f2 = x2, x1, f1
-            x1 = c_ - gr * (c_ - a_)
-            f1 = sse(x1)
-        else:
-            a_, x1, f1 = x1, x2, f2
-            x2 = a_ + gr * (c_ - a_)
-            f2 = sse(x2)
-    return 0.5 * (a_ + c_)
+    lo_, hi_ = golden_section_host(sse, grid[max(b - 1, 0)], grid[min(b + 1, len(grid) - 1)],
+                                   steps=60)
+    return 0.5 * (lo_ + hi_)
 
 
 def preprocess(

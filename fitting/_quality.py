@@ -37,6 +37,20 @@ Flags (:data:`FLAGS`; each with a message naming the numbers):
   offset "at a bound", while the flag names the misfit where it happens.
 - ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
   gives the reason (the step limit, or a stop without progress) and what to try.
+- ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`),
+  determined (status "ok"), is below :data:`TABOR_JKR_MIN`: the surface forces' range is
+  not small against the elastic
+  neck at the contact edge, and the model's JKR-limit criterion (adhesion of vanishing
+  range) overestimates the neck and the pull-off.
+
+**Validity (Tabor).** Every fit with adhesion reports Tabor's parameter
+$\mu = (R\,\Delta\gamma^2/(E^{*2} z_0^3))^{1/3}$ (:func:`jaxcontact.tabor_parameter`) among
+its derived quantities (``tabor_mu_1``: the summary, ``parameters.json``, ``parameters.csv``
+and the map columns), with the glass modulus $E^* = 4G_g$ (the criterion's modulus; the
+conservative, smaller $\mu$), $z_0$ = :data:`jaxcontact._probes.TABOR_SEPARATION` (0.3 nm)
+and $R$ the radius of the fitted sphere or paraboloid. For other profiles (cone, pyramid,
+flat punch, power law, tabulated) no radius of curvature is fitted and $\mu$ is reported as
+not defined (NaN). The standard error follows from the covariance by the delta method.
 
 A curve whose data show no contact (:func:`check_contact_signal`: on the approach and hold
 the baselined force never stays above ``5 σ`` for 5 samples — the loader's contact
@@ -52,6 +66,8 @@ import re
 
 import numpy as np
 
+import jaxcontact as jc
+
 from ._caller import warn_at_caller
 from ._curve import DataError
 from ._prepare import SEGMENTS, noise_level
@@ -60,7 +76,7 @@ from ._uncertainty import derived_quantities
 
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
            "segment_quality", "contact_outside", "convergence", "check_contact_signal",
-           "assess", "warning_kinds", "warn_summary"]
+           "assess", "warning_kinds", "warn_summary", "tabor_entry", "TABOR_JKR_MIN"]
 
 #: Reduced χ² above which the residuals are far above the noise (RMS residual > 5 σ).
 INADEQUATE_CHI2 = 25.0
@@ -74,7 +90,15 @@ SIGNAL_RUN = 5
 
 #: The flags of a fit (see the module docstring).
 FLAGS = ("model_inadequate", "segment_not_described", "contact_outside_data",
-         "not_converged")
+         "not_converged", "outside_jkr_limit")
+
+#: Tabor's parameter below which a fit is flagged ``outside_jkr_limit``. Johnson and
+#: Greenwood's adhesion map (J. Colloid Interface Sci. 192, 326 (1997)) puts the JKR zone at
+#: Maugis' $\lambda > 5$ ($\lambda \approx 1.16\mu$ for a Lennard-Jones law, i.e.
+#: $\mu \gtrsim 4.3$), where JKR's pull-off is within a few per cent of the
+#: Maugis–Dugdale one; DMT holds below $\lambda \approx 0.1$. 5 is that bound rounded up
+#: (and `docs/physics.md`'s "≳ 3–5" at its safe end).
+TABOR_JKR_MIN = 5.0
 
 
 def r_squared(model, force, weight, mask) -> float:
@@ -285,9 +309,74 @@ def assess(result, *, max_steps: int | None = None) -> list[str]:
     result.flags = flags
     result.derived = derived_quantities(result.spec, result.values, result.covariance,
                                         result.status)
+    tabor = tabor_entry(result.spec, result.values, result.covariance, result.status,
+                        result.radius, result.names)
+    if tabor is not None:
+        result.derived.append(tabor)
+        # only a determined mu: with the work of adhesion not determined (e.g. bounded only
+        # from below, no curve detaches) mu is not known to be small
+        if tabor["status"] == "ok" and tabor["value"] < TABOR_JKR_MIN:
+            flags["outside_jkr_limit"] = (
+                f"Tabor's parameter mu = {tabor['value']:.3g} (< {TABOR_JKR_MIN:g}; R = "
+                f"{result.radius:.3g} m, z0 = {jc.TABOR_SEPARATION:.3g} m, E* = 4 G_glass): "
+                "the contact is outside the JKR limit the model assumes (short-range "
+                "adhesion); the criterion overestimates the adhesive neck and the pull-off "
+                "(Maugis-Dugdale regime), so the work of adhesion is biased")
     new = list(flags.values())
     result.warnings = list(result.warnings) + new
     return new
+
+
+def tabor_entry(spec, p, covariance, status, radius, names) -> dict | None:
+    r"""Tabor's parameter of a fit as a derived quantity (module docstring, "Validity"):
+    a dict like those of :func:`fitting._uncertainty.derived_quantities` (``name``
+    "tabor_mu", ``unit`` "1", ``value``, ``stderr``, ``status``, ``definition``), or None for
+    a fit without adhesion (work of adhesion fixed at 0).
+
+    $\mu$ uses the glass modulus $E^* = 4G_g$ and `radius` (the fitted sphere's or
+    paraboloid's $R$ [m]); with `radius` None (other profiles) the value is NaN and the
+    status "not defined". The standard error is the delta method's over the free
+    parameters (NaN, status "not determined", when one of them is not determined or at a
+    bound).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from ._spec import build_rheology
+
+    k = list(names).index("work_of_adhesion")
+    p = np.asarray(p, dtype=float)
+    if not p[k] > 0:
+        return None
+    definition = ("Tabor's parameter (R dgamma^2 / (E*^2 z0^3))^(1/3), E* = 4 G_glass, z0 = "
+                  f"{jc.TABOR_SEPARATION:g} m; JKR limit (the model's) for mu >= "
+                  f"{TABOR_JKR_MIN:g}")
+    if radius is None or not math.isfinite(float(radius)):
+        return {"name": "tabor_mu", "unit": "1", "value": math.nan, "stderr": math.nan,
+                "status": "not defined",
+                "definition": definition + "; not defined: the profile has no fitted radius "
+                "of curvature (sphere or paraboloid only)"}
+    radius = float(radius)
+
+    def fn(q):
+        e_star = 4 * build_rheology(spec, q[:k]).glass_modulus
+        return jc.tabor_parameter(radius, q[k], e_star)
+
+    q = jnp.asarray(p)
+    value = float(fn(q))
+    grad = np.asarray(jax.jacfwd(fn)(q))
+    used = [j for j in range(len(p)) if grad[j] != 0 and status[j] != "fixed"]
+    ok = all(status[j] == "ok" for j in used)
+    cov = np.asarray(covariance, dtype=float)
+    if ok and used:
+        c = cov[np.ix_(used, used)]
+        var = float(grad[used] @ c @ grad[used]) if np.all(np.isfinite(c)) else math.nan
+        se = math.sqrt(var) if var >= 0 else math.nan
+    else:
+        se = 0.0 if ok else math.nan
+    return {"name": "tabor_mu", "unit": "1", "value": value, "stderr": se,
+            "status": "ok" if ok and math.isfinite(se) else "not determined",
+            "definition": definition + f", R = {radius:g} m"}
 
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

@@ -8,7 +8,8 @@ alone would give, ``stderr`` / $\sqrt{\chi^2_\mathrm{red}}$; ``stderr_basis`` sa
 words, ``stderr_scale`` gives the factor); derived quantities with their standard errors
 from the covariance and ``"derived": true`` (Young's moduli ``E0_Pa``, ``E1_Pa``,
 ``E_inf_Pa`` = 3G, incompressible; ``G_inf_Pa``, ``tau_s``; for a Prony series ``G_0_Pa``,
-``E_0_Pa``, ``E_inf_Pa``, ``E_k_Pa``); quality (``r_squared`` — weighted by the measured
+``E_0_Pa``, ``E_inf_Pa``, ``E_k_Pa``; with adhesion Tabor's parameter ``tabor_mu_1``,
+:func:`fitting._quality.tabor_entry`); quality (``r_squared`` — weighted by the measured
 samples each kept sample stands for, ``r_squared_weighting`` says so —
 ``r_squared_unweighted``, ``r_squared_contact``, ``reduced_chi2``, ``chi2``, ``aic``,
 ``bic``, ``n_data``, ``n_free``, ``converged``, ``convergence`` with ``reason`` and
@@ -22,7 +23,7 @@ source, segments, samples, duration, spring constant, and its detected contact p
 baseline when a loader found them).
 
 ``parameters.csv``: one row per parameter, then one per derived quantity (``derived``
-True: Young's moduli E = 3G, G_inf, E_inf, tau with errors from the covariance):
+True: Young's moduli E = 3G, G_inf, E_inf, tau, Tabor's mu with errors from the covariance):
 ``parameter,unit,value,stderr,relative_stderr,status,fixed,stderr_noise,stderr_basis,derived``
 (``stderr_basis``: ``noise x sqrt(reduced chi2)``, or ``... (model inadequate)`` when the
 residuals are far above the noise).
@@ -44,7 +45,8 @@ then per parameter ``<name>_<unit>``, ``..._stderr``, ``..._status``, then
 :func:`map_columns` (``status`` ok/flagged/failed, ``flags``, ``warnings``,
 ``convergence``, ``r_squared_unweighted``, per segment ``r_squared_<segment>``,
 ``reduced_chi2_<segment>``, ``max_residual_<segment>``, the derived quantities with their
-standard errors: ``E0_Pa``, ``E0_Pa_stderr``, ..., ``G_inf_Pa``, ``E_inf_Pa``) and the
+standard errors: ``E0_Pa``, ``E0_Pa_stderr``, ..., ``G_inf_Pa``, ``E_inf_Pa``,
+``tabor_mu_1``) and the
 settings of each curve (``profile``, ``radius_m``, ``contact_point``, ``contact_method``,
 ``baseline``, ``baseline_region``, ``noise_N``); empty cells where a value is missing) and
 ``parameters.json`` (model, counts by status, the settings, the warnings by kind, names

@@ -64,7 +64,9 @@ class FitResult:
     the factor the Gauss–Newton errors carry: `stderr` / `stderr_scale` is the error the
     noise alone would give), `derived` (Young's moduli $E = 3G$ beside every shear
     modulus, the relaxed modulus $G_\\infty$ and $E_\\infty$, with standard errors from the
-    covariance: :func:`fitting._uncertainty.derived_quantities`).
+    covariance: :func:`fitting._uncertainty.derived_quantities`; with adhesion, Tabor's
+    parameter ``tabor_mu`` of the JKR limit, :func:`fitting._quality.tabor_entry`, flagged
+    ``outside_jkr_limit`` below :data:`fitting._quality.TABOR_JKR_MIN`).
     """
 
     names: list[str]
@@ -187,7 +189,7 @@ class FitResult:
                 lines.append(f"    {col:<26} {v:12.6g}   {st}")
         if self.derived:
             lines.append("[[derived]] (Young's modulus E = 3G: incompressible, nu = 0.5; "
-                         "errors from the covariance)")
+                         "Tabor's mu: the JKR limit needs a large mu; errors from the covariance)")
             for d in self.derived:
                 col = f"{d['name']}_{d['unit']}"
                 if d["status"] == "ok":

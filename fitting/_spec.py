@@ -27,6 +27,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxcontact as jc
+from jaxcontact._vocabulary import PARAMETERS, column_unit, parameter
 
 __all__ = [
     "ModelSpec",
@@ -41,8 +42,17 @@ __all__ = [
     "RheologyKind",
 ]
 
-#: Units of the parameter kinds, as written in column names.
-UNITS = ("Pa", "Pa_s", "s", "J_m2", "m", "N")
+#: Units of the parameters, as written in column names (the registry's,
+#: :mod:`jaxcontact._vocabulary`).
+UNITS = tuple(dict.fromkeys(column_unit(p.unit) for p in PARAMETERS.values()))
+
+
+def _info(name: str) -> tuple[str, str, str]:
+    """(short name, unit as in column names, kind) of a parameter of the registry
+    (:mod:`jaxcontact._vocabulary`); the kind of a signed parameter (an offset) is
+    ``offset_<kind>``: fitted linearly, not in logarithms."""
+    p = parameter(name)
+    return name, column_unit(p.unit), ("offset_" if p.signed else "") + p.kind
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,17 +91,15 @@ def _prony_moduli(g_inf, g_glass, taus, weights, arms):
 
 
 def _prony_parameters(arms):
-    return ([("G_inf", "Pa", "modulus")]
-            + [(f"G_{k + 1}", "Pa", "modulus") for k in range(arms)]
-            + [(f"tau_{k + 1}", "s", "time") for k in range(arms)])
+    return ([_info("G_inf")] + [_info(f"G_{k + 1}") for k in range(arms)]
+            + [_info(f"tau_{k + 1}") for k in range(arms)])
 
 
 #: The rheologies of a fit, by name (``rheology="standard"``, ``"prony:N"``, ``"elastic"``).
 RHEOLOGIES: dict[str, RheologyKind] = {
     "standard": RheologyKind(
         arms=None, fixed_arms=1,
-        parameters=lambda arms: [("G0", "Pa", "modulus"), ("G1", "Pa", "modulus"),
-                                 ("eta1", "Pa_s", "viscosity")],
+        parameters=lambda arms: [_info("G0"), _info("G1"), _info("eta1")],
         build=lambda p, arms: jc.StandardModel(p[0], p[1], p[2]),
         from_moduli=_standard_moduli, help="G0 [Pa], G1 [Pa], eta1 [Pa s]"),
     "prony": RheologyKind(
@@ -99,7 +107,7 @@ RHEOLOGIES: dict[str, RheologyKind] = {
         build=lambda p, arms: jc.PronySeries(p[0], p[1:1 + arms], p[1 + arms:1 + 2 * arms]),
         from_moduli=_prony_moduli, help="G_inf, G_1..G_N [Pa], tau_1..tau_N [s]"),
     "elastic": RheologyKind(
-        arms=None, fixed_arms=0, parameters=lambda arms: [("G", "Pa", "modulus")],
+        arms=None, fixed_arms=0, parameters=lambda arms: [_info("G")],
         build=lambda p, arms: jc.Elastic(p[0]),
         from_moduli=lambda g_inf, g_glass, taus, weights, arms: {"G": g_inf},
         help="G [Pa]"),
@@ -176,11 +184,11 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
     "offset_length", "offset_force" (any sign, fitted linearly).
     """
     out = list(RHEOLOGIES[spec.rheology].parameters(spec.arms))
-    out.append(("work_of_adhesion", "J_m2", "adhesion"))
+    out.append(_info("work_of_adhesion"))
     if spec.contact_offset:
-        out.append(("contact_offset", "m", "offset_length"))
+        out.append(_info("contact_offset"))
     if spec.force_offset:
-        out.append(("force_offset", "N", "offset_force"))
+        out.append(_info("force_offset"))
     return out
 
 

@@ -100,7 +100,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from . import _sharding
-from ._criteria import BEM_CHI
+from ._criteria import cell_critical_stress
 from ._profiles import AbstractProfile
 from ._rheology import AbstractRheology
 from ._solution import RESULTS
@@ -888,7 +888,7 @@ def _bem_simulate_plain(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displac
     k00 = love_displacement(0.0, 0.0, 0.5 * delta, 0.5 * delta)
     G0, Gk, eta = chain.G0, chain.G, chain.eta
     theta = eta / Gk
-    sigma_c = -jnp.sqrt(4 * G0 * dgamma / (BEM_CHI * delta))
+    sigma_c = cell_critical_stress(delta, dgamma, 4 * G0)  # the glass E* = 4 G0
     dtype = h.dtype
     zeros = jnp.zeros((n, n), dtype)
     scalar = jnp.zeros((), dtype)

@@ -20,6 +20,14 @@ tension (the edge of a detaching contact is under tension). All quantities in SI
 
 Inputs are validated with a `ValueError` when they are concrete (not under `jit`); every
 function broadcasts over its arguments and is differentiable.
+
+**The one home of the rule.** Every model evaluates the criterion through the unchecked,
+trace-safe coefficients below (the public functions call them too): `hess_coefficient`
+(elastic MDR, `_elastic.py`, and the profiles' front), `line_load_coefficient` (the foundation,
+`_foundation/_model.py`), `relaxed_front_coefficient` (the relaxed front of `retract`,
+`_pulloff.py`, and of the sweep, `_sweep/_models.py`) and `cell_critical_stress` (the BEM,
+`_bem.py`). Changing the criterion (attachment different from detachment, a finite range)
+means changing these.
 """
 
 from __future__ import annotations
@@ -34,6 +42,10 @@ from ._validate import check_finite, check_positive
 
 __all__ = [
     "BEM_CHI",
+    "cell_critical_stress",
+    "hess_coefficient",
+    "line_load_coefficient",
+    "relaxed_front_coefficient",
     "bem_critical_stress",
     "bem_release_energy",
     "critical_elongation",
@@ -48,6 +60,35 @@ __all__ = [
 BEM_CHI: float = (2.0 / (3.0 * math.pi)) * (
     1.0 - math.sqrt(2.0) + 1.5 * math.log((math.sqrt(2.0) + 1.0) / (math.sqrt(2.0) - 1.0))
 )
+
+
+def hess_coefficient(effective_modulus, work_of_adhesion):
+    r"""$c = \sqrt{2\pi\Delta\gamma/E^*}$ [m^(1/2)]: the rule of Heß (eq. 4) as the critical
+    edge elongation $\Delta l(a) = c\sqrt a$ (`hess_elongation`). Unchecked, trace-safe."""
+    return jnp.sqrt(2 * jnp.pi * work_of_adhesion / effective_modulus)
+
+
+def line_load_coefficient(work_of_adhesion, glass_modulus):
+    r"""$\sqrt{8\pi\Delta\gamma G_0}$ [N m^(-3/2)]: the energetic criterion (eqs. 10-11) as
+    the critical edge line load $q_c(a) = -\sqrt{8\pi\Delta\gamma G_0}\,\sqrt a$
+    (`critical_line_load`), i.e. the rule of Heß with $E^* = 4G_0$ applied to the line load
+    ($q_c = -E^* c\sqrt a$). Unchecked, trace-safe."""
+    return jnp.sqrt(8 * jnp.pi * work_of_adhesion * glass_modulus)
+
+
+def relaxed_front_coefficient(work_of_adhesion, glass_modulus, relaxed_modulus):
+    r"""$c = \sqrt{8\pi\Delta\gamma G_0}/(4G_\infty) = \sqrt{\pi\Delta\gamma G_0/2}/G_\infty$
+    [m^(1/2)]: the energetic criterion on a front whose springs are relaxed (the relaxed front
+    of `retract` and the sweep): the critical line load $q_c$ carried by the relaxed stiffness
+    $4G_\infty$ is the elongation $c\sqrt a$, so the front is $h(a) = g(a) - c\sqrt a$
+    (`_profiles.front_displacement`). Unchecked, trace-safe."""
+    return line_load_coefficient(work_of_adhesion, glass_modulus) / (4 * relaxed_modulus)
+
+
+def cell_critical_stress(cell_size, work_of_adhesion, effective_modulus):
+    r"""$\sigma_c = -\sqrt{E^*\Delta\gamma/(\chi\Delta)}$ [Pa] (eq. 15) without the checks of
+    `bem_critical_stress` (trace-safe; the BEM passes the glass $E^* = 4G_0$)."""
+    return -jnp.sqrt(effective_modulus * work_of_adhesion / (BEM_CHI * cell_size))
 
 
 def _check_common(radius, work_of_adhesion):
@@ -78,7 +119,7 @@ def critical_elongation(
     _check_common(radius, work_of_adhesion)
     check_positive("glass_modulus", glass_modulus, "Pa")
     a, w, g0 = jnp.broadcast_arrays(radius, work_of_adhesion, glass_modulus)
-    return jnp.sqrt(jnp.pi * a * w / (2 * g0))
+    return hess_coefficient(4 * g0, w) * jnp.sqrt(a)
 
 
 @float64_scope
@@ -104,7 +145,7 @@ def critical_line_load(
     _check_common(radius, work_of_adhesion)
     check_positive("glass_modulus", glass_modulus, "Pa")
     a, w, g0 = jnp.broadcast_arrays(radius, work_of_adhesion, glass_modulus)
-    return -jnp.sqrt(8 * jnp.pi * a * w * g0)
+    return -line_load_coefficient(w, g0) * jnp.sqrt(a)
 
 
 @float64_scope
@@ -127,7 +168,7 @@ def hess_elongation(
     _check_common(radius, work_of_adhesion)
     check_positive("effective_modulus", effective_modulus, "Pa")
     a, w, e = jnp.broadcast_arrays(radius, work_of_adhesion, effective_modulus)
-    return jnp.sqrt(2 * jnp.pi * a * w / e)
+    return hess_coefficient(e, w) * jnp.sqrt(a)
 
 
 @float64_scope
@@ -174,4 +215,4 @@ def bem_critical_stress(
     check_positive("work_of_adhesion", work_of_adhesion, "J/m^2")
     check_positive("effective_modulus", effective_modulus, "Pa")
     d, w, e = jnp.broadcast_arrays(cell_size, work_of_adhesion, effective_modulus)
-    return -jnp.sqrt(e * w / (BEM_CHI * d))
+    return cell_critical_stress(d, w, e)

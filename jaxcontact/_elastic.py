@@ -21,9 +21,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._profiles import AbstractProfile, front_displacement, hess_coefficient
+from ._criteria import hess_coefficient
+from ._profiles import AbstractProfile, front_displacement
 from ._solution import RESULTS, fold_results, is_error, raise_if_error
-from ._solvers import as_float, cast_floats, float64_scope, float_dtype
+from ._solvers import as_float, cast_floats, float64_scope, float_dtype, gauss_legendre_unit
 from ._validate import (
     Constraint,
     check_contact_radius,
@@ -386,7 +387,7 @@ def pull_off(
                        force=jnp.where(bad, nan, F), result=result)
 
 
-_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(64)
+_GL_NODES, _GL_WEIGHTS = gauss_legendre_unit(64)  # on [0, 1]
 
 
 @float64_scope
@@ -457,11 +458,11 @@ def _pressure(profile, r, a, effective_modulus, displacement):
     lead = (1,) * jnp.ndim(umax)
     nodes = jnp.reshape(jnp.asarray(_GL_NODES, r.dtype), lead + (-1,))
     weights = jnp.reshape(jnp.asarray(_GL_WEIGHTS, r.dtype), lead + (-1,))
-    u = 0.5 * umax[..., None] * (nodes + 1.0)
+    u = umax[..., None] * nodes
     x = jnp.sqrt(r_in[..., None] ** 2 + u**2)
     x = jnp.maximum(x, jnp.finfo(x.dtype).tiny)
     integrand = profile.dg(x) / x
-    integral = 0.5 * umax * jnp.sum(weights * integrand, axis=-1)
+    integral = umax * jnp.sum(weights * integrand, axis=-1)
     edge = (displacement - profile.g(a)) / umax
     p = effective_modulus / jnp.pi * (integral + edge)
     return jnp.where(inside, p, 0.0)

@@ -67,7 +67,6 @@ __all__ = [
     "PositionCoordinate",
     "TouchCoordinate",
     "front_displacement",
-    "hess_coefficient",
     "power_law_factor",
 ]
 
@@ -83,14 +82,9 @@ def power_law_factor(n: ArrayLike) -> Array:
     return jnp.sqrt(jnp.pi) * jnp.exp(gammaln(n / 2 + 1) - gammaln(n / 2 + 0.5))
 
 
-def hess_coefficient(effective_modulus, work_of_adhesion):
-    r"""$c = \sqrt{2\pi\Delta\gamma/E^*}$ [m^(1/2)]: the rule of Heß (eq. 4) gives the critical
-    elongation $c\sqrt a$ (`docs/physics.md` §2)."""
-    return jnp.sqrt(2 * jnp.pi * work_of_adhesion / effective_modulus)
-
-
 def front_displacement(profile, a, c):
-    r"""The indentation on the detachment front, $h(a) = g(a) - c\sqrt a$ [m]."""
+    r"""The indentation on the detachment front, $h(a) = g(a) - c\sqrt a$ [m], with $c$ from
+    the criterion (`_criteria.hess_coefficient` or `_criteria.relaxed_front_coefficient`)."""
     return profile.g(a) - c * jnp.sqrt(a)
 
 

@@ -48,13 +48,16 @@ Persson–Brener); do not validate it against those.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from ._arms import phi
+from ._criteria import relaxed_front_coefficient
 from ._method import AbstractMethod, DiffraxODE, ExactUpdate
 from ._probes import check_depth_limit, depth_limit
 from ._profiles import AbstractProfile, front_displacement
@@ -95,6 +98,40 @@ def prony_arrays(rheology):
     """`(G_inf, G, tau)` of the relaxation form, the arms as 1-D arrays."""
     prony = rheology.to_prony()
     return prony.G_inf, jnp.atleast_1d(prony.G), jnp.atleast_1d(prony.tau)
+
+
+class RelaxedFront(NamedTuple):
+    r"""The detachment front of a lift from a relaxed contact of touch radius $a_0$ (the
+    module docstring; also the sweep's, `_sweep/_models.py`), any consistent units.
+
+    On the front the indentation is $h(a) = g(a) - c\sqrt a$ (`front_displacement`) with $c$
+    the energetic criterion carried by the relaxed springs (`relaxed_front_coefficient`).
+    """
+
+    c: Array  # the criterion's coefficient [m^(1/2)]
+    a_fold: Array  # the fold of h(a) (displacement control: the smallest stable radius)
+    a_fc: Array  # the minimum of the front's force (force control)
+    a_crit: Array  # the jump-off radius, min(a_fold, a0)
+    h_crit: Array  # h(a_crit): no edge holds once the effective displacement is below it
+    h_pin: Array  # h(a0): the pinned edge starts to recede below it
+    can_recede: Array  # a0 > a_fold (false e.g. for the flat punch)
+
+
+def relaxed_front(profile, work_of_adhesion, relaxed_modulus, glass_modulus, a0) -> RelaxedFront:
+    """The constants of the relaxed detachment front (`RelaxedFront`), computed once for
+    `retract` and the sweep."""
+    c = relaxed_front_coefficient(work_of_adhesion, glass_modulus, relaxed_modulus)
+    a_fold = profile.critical_radius(c, 0.5)
+    a_crit = jnp.minimum(a_fold, a0)
+    return RelaxedFront(
+        c=c,
+        a_fold=a_fold,
+        a_fc=profile.critical_radius(c, 1.5),
+        a_crit=a_crit,
+        h_crit=front_displacement(profile, a_crit, c),
+        h_pin=front_displacement(profile, a0, c),
+        can_recede=a0 > a_fold,
+    )
 
 
 def _segment_deff(u, depth, delta_a, w_a, slope, arm_ratio, tau, glass_ratio):
@@ -303,13 +340,9 @@ def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact
     d_eff = d + glass_ratio * jnp.sum(w, axis=-1)
 
     # ---- the front -----------------------------------------------------------------------
-    c = jnp.sqrt(0.5 * jnp.pi * dgamma * G_g) / G_inf
-    a_fold = profile.critical_radius(c, 0.5)
-    a_fc = profile.critical_radius(c, 1.5)
-    h_pin = front_displacement(profile, a0, c)
-    a_crit = jnp.minimum(a_fold, a0)
-    h_crit = front_displacement(profile, a_crit, c)
-    can_recede = a0 > a_fold
+    front = relaxed_front(profile, dgamma, G_inf, G_g, a0)
+    c, a_fold, a_fc, h_pin = front.c, front.a_fold, front.a_fc, front.h_pin
+    a_crit, h_crit, can_recede = front.a_crit, front.h_crit, front.can_recede
 
     if velocity is not None:
         # constant-speed lift from rest: d_eff' = -v G(t)/G_inf < 0, so d_eff is its own

@@ -3,7 +3,9 @@ r"""Small numerical helpers shared by the forward models (one home for each).
 The bracketed scalar root finder with implicit derivatives lives in `_root.py`
 (`bracketed_root`); this module holds the other helpers:
 
-- `golden_section`: shrink a bracket around the minimum of a unimodal scalar function.
+- `golden_section`: shrink a bracket around the minimum of a unimodal scalar function
+  (`golden_section_host`: the same steps for a NumPy/Python function, outside a trace).
+- `gauss_legendre_unit`: Gauss–Legendre nodes and weights on $[0, 1]$.
 - `newton_iterate`, `implicit_extremum`: Newton's method on $f'(x) = 0$ for a stationary
   point without derivatives, and the one Newton step that gives it the implicit derivative.
 - `quadratic_newton_form`, `quadratic_at`, `quadratic_vertex`: the quadratic through three
@@ -38,7 +40,9 @@ __all__ = [
     "float_dtype",
     "float64_scope",
     "floats_to_arrays",
+    "gauss_legendre_unit",
     "golden_section",
+    "golden_section_host",
     "implicit_extremum",
     "newton_iterate",
     "quadratic_at",
@@ -181,13 +185,48 @@ def golden_section(
 
     def body(_, carry):
         lo, hi = carry
-        x1 = hi - _GOLDEN * (hi - lo)
-        x2 = lo + _GOLDEN * (hi - lo)
+        x1, x2 = _golden_points(lo, hi)
         f1, f2 = lax.stop_gradient(jax.vmap(fn)(jnp.stack([x1, x2])))
         left = f1 <= f2
         return jnp.where(left, lo, x1), jnp.where(left, x2, hi)
 
     return lax.fori_loop(0, steps, body, (lax.stop_gradient(lo), lax.stop_gradient(hi)))
+
+
+def _golden_points(lo, hi):
+    """The two interior golden points of `[lo, hi]` (one step of both golden searches)."""
+    return hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+
+
+def golden_section_host(
+    fn: Callable[[float], float], lo: float, hi: float, *, steps: int
+) -> tuple[float, float]:
+    """`golden_section` for a plain (NumPy/Python) scalar function, run on the host.
+
+    The same steps (both interior points evaluated each step, the left sub-bracket kept on a
+    tie), without tracing or compiling `fn`: for data-dependent objectives called once, such
+    as the contact-point fit of `fitting.preprocess`, where a compiled loop would recompile
+    for every curve. **Returns:** the final bracket `(lo, hi)` as Python floats.
+    """
+    lo, hi = float(lo), float(hi)
+    for _ in range(steps):
+        x1, x2 = _golden_points(lo, hi)
+        if fn(x1) <= fn(x2):
+            hi = x2
+        else:
+            lo = x1
+    return lo, hi
+
+
+@functools.cache
+def gauss_legendre_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
+    r"""`n`-point Gauss–Legendre nodes and weights on $[0, 1]$ (NumPy, float64; cached):
+    $\int_0^1 f \approx \sum_i w_i f(u_i)$, exact for polynomials of degree $2n - 1$."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    u, w = 0.5 * (x + 1.0), 0.5 * w
+    u.flags.writeable = False
+    w.flags.writeable = False
+    return u, w
 
 
 def newton_iterate(

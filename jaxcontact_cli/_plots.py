@@ -132,10 +132,26 @@ def plot_fit(result, path=None):
     return fig
 
 
+#: Units of the parameter columns as a figure writes them.
+_UNIT_TEXT = {"Pa_s": "Pa s", "J_m2": "J/m²"}
+
+
+def _map_title(name: str, unit: str) -> str:
+    """A map panel's title: the parameter with its unit; a shear modulus (unit Pa: "G0",
+    "G_inf", "G_1", "G") as the Young's modulus E = 3G ("E0 [Pa] = 3 G0")."""
+    text = _UNIT_TEXT.get(unit, unit)
+    if unit == "Pa" and name.startswith("G"):
+        return f"E{name[1:]} [{text}] = 3 {name}"
+    return f"{name} [{text}]"
+
+
 def plot_map(result, path=None):
     """Maps of a :class:`fitting.FitEachResult`; saved to `path` (PNG) if given.
 
-    One panel per free parameter and one for $R^2$ in contact. A force map (curves with
+    One panel per free parameter and one for $R^2$ in contact, titled with its unit. Shear
+    moduli are drawn as Young's moduli $E = 3G$ (the incompressible half-space, $\nu = 0.5$:
+    the field's convention; ``E0 [Pa] = 3 G0``), their errors scaled alike; ``map.csv`` keeps
+    both. A force map (curves with
     grid indices, one per grid point) is drawn as images on the grid (``grid_x`` to the
     right, ``grid_y`` up; grey: no curve at that point, or a failed fit, marked ×);
     other batches as values against the curve index with their standard errors (failed
@@ -151,8 +167,12 @@ def plot_map(result, path=None):
 
     first = next(r for r in result.results if r is not None)
     free = [j for j in range(len(result.names)) if not first.fixed[j]]
-    panels = [(result.columns[j], j) for j in free] + [("R² in contact", None)]
+    panels = [(_map_title(result.names[j], result.units[j]), j) for j in free] + [
+        ("R² in contact", None)]
     vals, errs = result.values(), result.stderr()
+    # shear moduli as Young's moduli, E = 3G (the titles say so)
+    young = np.array([3.0 if u == "Pa" else 1.0 for u in result.units])
+    vals, errs = vals * young, errs * young
     r2 = np.array([r.r_squared_contact if r is not None else np.nan for r in result.results])
     status = [[r.status[j] if r is not None else "failed" for j in range(len(result.names))]
               for r in result.results]

@@ -27,17 +27,18 @@ from ._simulate import add_material_arguments
 
 __all__ = ["add_parser", "run", "parse_range"]
 
-# command-line option -> (sweep parameter, unit, lower bound allows zero)
+# command-line option -> sweep parameter (its unit and range: the registry of parameters,
+# `jaxcontact._vocabulary`, read when the options are parsed: importing jaxcontact starts JAX)
 _OPTIONS = {
-    "G0": ("G0", "Pa", False),
-    "G1": ("G1", "Pa", False),
-    "eta1": ("eta1", "Pa s", False),
-    "work_of_adhesion": ("work_of_adhesion", "J/m^2", False),
-    "radius": ("R", "m", False),
-    "depth": ("depth", "m", False),
-    "velocity": ("velocity", "m/s", False),
-    "hold": ("hold", "s", True),
-    "approach_velocity": ("approach_velocity", "m/s", False),
+    "G0": "G0",
+    "G1": "G1",
+    "eta1": "eta1",
+    "work_of_adhesion": "work_of_adhesion",
+    "radius": "R",
+    "depth": "depth",
+    "velocity": "velocity",
+    "hold": "hold",
+    "approach_velocity": "approach_velocity",
 }
 _SUMMARY_NAMES = (
     "max_tensile_force_N", "jumpoff_force_N", "jumpoff_displacement_m", "jumpoff_time_s",
@@ -153,13 +154,16 @@ def parse_range(option: str, text: str, unit: str, *, allow_zero: bool = False):
 
 def _parameters(args):
     """The sweep grid of the options (and which are log ranges), checked."""
+    from jaxcontact._vocabulary import parameter
+
     grid, log = {}, {}
-    for dest, (name, unit, allow_zero) in _OPTIONS.items():
+    for dest, name in _OPTIONS.items():
         text = getattr(args, dest)
         if text is None:
             continue
         option = "--" + dest.replace("_", "-")
-        values, is_log = parse_range(option, text, unit, allow_zero=allow_zero)
+        info = parameter(name)
+        values, is_log = parse_range(option, text, info.unit, allow_zero=info.allow_zero)
         grid[name] = values[0] if len(values) == 1 and ":" not in str(text) else values
         log[name] = is_log
     if max(_as_list(grid["depth"])) >= min(_as_list(grid["R"])):
@@ -308,7 +312,7 @@ def run(args) -> int:
         if plot.resolve() == out.resolve():
             raise UsageError("argument --plot: must differ from --out")
     if args.plot_x is not None:
-        names = {dest.replace("_", "-"): name for dest, (name, _, _) in _OPTIONS.items()}
+        names = {dest.replace("_", "-"): name for dest, name in _OPTIONS.items()}
         key = args.plot_x.lstrip("-")
         name = names.get(key, key)
         if not isinstance(grid.get(name), list):

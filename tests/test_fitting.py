@@ -5,6 +5,7 @@ every fit here uses 3 × 60 samples and 4 starts, so one compilation serves most
 """
 
 import csv
+import dataclasses
 import json
 import types
 import warnings
@@ -410,7 +411,8 @@ def test_report_files_and_summary(noisy_fit, tmp_path):
     rows = paths["csv"].read_text().splitlines()
     assert rows[0] == ("parameter,unit,value,stderr,relative_stderr,status,fixed,"
                        "stderr_noise,stderr_basis,derived")
-    assert len(rows) == 5 + 5  # 4 parameters, 5 derived (E0, E1, G_inf, E_inf, tau)
+    # 4 parameters, 6 derived (E0, E1, G_inf, E_inf, tau, Tabor's mu)
+    assert len(rows) == 5 + 6
     samples = paths["samples"].read_text().splitlines()
     assert samples[0] == ("curve,segment,time_s,indentation_m,force_N,model_force_N,residual,"
                           "weight,contact_radius_m")
@@ -660,3 +662,47 @@ def test_host_prepared_batch_equals_the_device_one_and_bad_probes_always_raise(n
     for _ in range(2):
         with pytest.raises(ValueError, match="R"):
             prepare_curves(noisy, spec, profile=bad)
+
+
+def test_tabor_parameter_reported_with_its_error_and_flagged_when_small(noisy_fit, tmp_path):
+    res = noisy_fit
+    mu = {d["name"]: d for d in res.derived}["tabor_mu"]
+    w, g0 = res["work_of_adhesion"], res["G0"]
+    # the value: Tabor's parameter with the glass modulus E* = 4 G0 (the criterion's)
+    assert mu["value"] == pytest.approx(float(jc.tabor_parameter(R, w, 4 * g0)), rel=1e-12)
+    assert mu["status"] == "ok" and mu["value"] > fitting._quality.TABOR_JKR_MIN
+    # its error by a second route: mu ~ (w / G0)^(2/3), so var(ln mu) = (4/9) var(ln w - ln G0)
+    i, k = res.names.index("G0"), res.names.index("work_of_adhesion")
+    c = res.covariance
+    var_log = c[k, k] / w**2 + c[i, i] / g0**2 - 2 * c[i, k] / (w * g0)
+    assert mu["stderr"] == pytest.approx(mu["value"] * 2 / 3 * np.sqrt(var_log), rel=1e-6)
+    assert "outside_jkr_limit" not in res.flags
+    # everywhere: console, JSON, CSV
+    assert "tabor_mu_1" in res.summary()
+    paths = fitting.write_report(res, tmp_path)
+    table = json.loads(paths["json"].read_text())
+    assert table["tabor_mu_1"]["value"] == pytest.approx(mu["value"])
+    assert table["tabor_mu_1"]["derived"] is True
+    # a probe of atomic size makes mu small: flagged, with the numbers, outside the JKR limit
+    small = dataclasses.replace(res, radius=1e-12, warnings=[], derived=[])
+    fitting._quality.assess(small)
+    mu_small = {d["name"]: d for d in small.derived}["tabor_mu"]["value"]
+    assert mu_small == pytest.approx(mu["value"] * (1e-12 / R) ** (1 / 3), rel=1e-9)
+    assert mu_small < 5 and "outside_jkr_limit" in small.flags
+    assert any("Tabor" in m and f"{mu_small:.3g}" in m for m in small.warnings)
+    # ... but not where the work of adhesion is not determined (mu then not known to be small)
+    status = ["not determined" if n == "work_of_adhesion" else s
+              for n, s in zip(res.names, res.status, strict=True)]
+    vague = dataclasses.replace(res, radius=1e-12, warnings=[], derived=[], status=status)
+    fitting._quality.assess(vague)
+    assert "outside_jkr_limit" not in vague.flags
+    assert {d["name"]: d for d in vague.derived}["tabor_mu"]["status"] == "not determined"
+    # no radius of curvature (e.g. a cone): not defined, not a number
+    cone = fitting._quality.tabor_entry(res.spec, res.values, res.covariance, res.status,
+                                        None, res.names)
+    assert cone["status"] == "not defined" and np.isnan(cone["value"])
+    # no adhesion: no entry
+    p0 = np.array(res.values, dtype=float)
+    p0[k] = 0.0
+    assert fitting._quality.tabor_entry(res.spec, p0, res.covariance, res.status, R,
+                                        res.names) is None

@@ -145,6 +145,10 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
         assert float(rows[k]["E0_Pa_stderr"]) == pytest.approx(
             3 * float(rows[k]["G0_Pa_stderr"]))
         assert float(rows[k]["E_inf_Pa_stderr"]) > 0
+        # Tabor's parameter of each point (glass modulus, z0 = 0.3 nm): deep in the JKR limit
+        assert float(rows[k]["tabor_mu_1"]) == pytest.approx(float(jc.tabor_parameter(
+            R, float(rows[k]["work_of_adhesion_J_m2"]), 4 * float(rows[k]["G0_Pa"]))))
+        assert float(rows[k]["tabor_mu_1"]) > 5 and float(rows[k]["tabor_mu_1_stderr"]) > 0
     table = json.loads(paths["json"].read_text())
     assert table["settings"]["radius_m"] == R and table["settings"]["model"] == "relaxed"
     assert table["ok"] == 3 and table["flagged"] == 0
@@ -159,6 +163,23 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     assert "3 ok, 0 flagged" in text and "2 failed" in text
     g0 = [r["G0_Pa"] for r in each.results if r is not None]
     assert f"{np.median(g0):12.5g}   (ok 3)" in text
+
+
+def test_map_figure_draws_young_moduli_with_units(each):
+    from jaxcontact_cli._plots import plot_map
+
+    fig = plot_map(each)
+    axes = {ax.get_title(): ax for ax in fig.axes if ax.get_title()}
+    assert set(axes) >= {"E0 [Pa] = 3 G0", "E1 [Pa] = 3 G1", "eta1 [Pa s]",
+                         "work_of_adhesion [J/m²]", "R² in contact"}
+    img = axes["E0 [Pa] = 3 G0"].images[0].get_array()
+    j = each.names.index("G0")
+    for r, m in zip(each.results, each.metadata, strict=True):
+        if r is not None:  # the grid point's pixel holds E0 = 3 G0 of its fit
+            assert img[m["grid index y"], m["grid index x"]] == pytest.approx(3 * r.values[j])
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
 
 
 def _with_approach(c, k=6):

@@ -7,6 +7,7 @@ from jax import lax
 
 from .. import _sharding
 from .._arms import attached_update
+from .._criteria import line_load_coefficient
 from .._root import concave_root
 from .._sharding import pick
 from .._solvers import safe_div
@@ -30,7 +31,8 @@ class _ModelCore:
         self.Gg = Gi + jnp.sum(Gk)
         self.arm_ratio = Gk / self.Gg
         self.A = (self.arm_ratio[None, :] - jnp.eye(Gk.shape[0], dtype=Gi.dtype)) / tau[:, None]
-        self.c = jnp.sqrt(8.0 * jnp.pi * work_of_adhesion * self.Gg)
+        # the energetic criterion: an edge at x holds while its line load q >= -c sqrt(x)
+        self.c = line_load_coefficient(work_of_adhesion, self.Gg)
         self.geo = profile.touch_coordinate()
         # the elastic part of beta: 4 G_inf g(x) (absent for the flat punch, where g = 0)
         self.Gi_g = Gi * self.geo.g_weight

@@ -78,15 +78,15 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .._arms import psi_relative
 from .._elastic import profile_radius
 from .._foundation import FoundationGrid, simulate
 from .._profiles import front_displacement
-from .._pulloff import prony_arrays, retract
+from .._pulloff import RelaxedFront, prony_arrays, relaxed_front, retract
 from .._root import bracketed_root
 from .._solution import RESULTS, is_error
+from .._solvers import gauss_legendre_unit
 from .._validate import domain_ok
 
 __all__ = ["AbstractSweepModel", "RelaxedStart", "ApproachHoldLift", "PointResult"]
@@ -114,21 +114,23 @@ class PointResult(eqx.Module):
 
 
 class _Front(eqx.Module):
-    """The constants of a lift's detachment front in scaled units (module docstring)."""
+    """The constants of a lift's detachment front in scaled units (module docstring); the
+    front itself is `retract`'s (`_pulloff.relaxed_front`)."""
 
     G_inf: jnp.ndarray
     ratio: jnp.ndarray  # G_k / G_inf, per arm
     tau: jnp.ndarray
-    c: jnp.ndarray  # sqrt(pi dgamma G_g / 2) / G_inf
-    a_fold: jnp.ndarray
-    h_crit: jnp.ndarray  # h(min(a_fold, a0)): no edge holds once D < h_crit
     a0: jnp.ndarray  # the touch radius, g(a0) = 1
+    relaxed: RelaxedFront  # c, a_fold, a_crit, h_crit (no edge holds once D < h_crit), ...
+
+    @property
+    def h_crit(self):
+        return self.relaxed.h_crit
 
 
 def _front_constants(rheology, profile, work_of_adhesion) -> _Front:
     G_inf, G, tau = prony_arrays(rheology)
     G_g = G_inf + jnp.sum(G)
-    c = jnp.sqrt(0.5 * jnp.pi * work_of_adhesion * G_g) / G_inf
     one = jnp.ones_like(G_inf)
     # the touch radius g(a0) = d0 = 1, rounded up by a few ulp so that g(a0) >= d0 also after
     # round-off (retract flags a lift whose start lies beyond g(a0) as an advancing contact,
@@ -136,10 +138,8 @@ def _front_constants(rheology, profile, work_of_adhesion) -> _Front:
     # punch touches with its whole face: rounded beyond its edge it was an invalid radius)
     a0 = profile_radius(profile, one, throw=False) * (1 + 4 * jnp.finfo(one.dtype).eps)
     a0 = jnp.minimum(a0, profile.max_radius)
-    a_fold = profile.critical_radius(c, 0.5)
-    h_crit = front_displacement(profile, jnp.minimum(a_fold, a0), c)
-    return _Front(G_inf=G_inf, ratio=G / G_inf, tau=tau, c=c, a_fold=a_fold, h_crit=h_crit,
-                  a0=a0)
+    return _Front(G_inf=G_inf, ratio=G / G_inf, tau=tau, a0=a0,
+                  relaxed=relaxed_front(profile, work_of_adhesion, G_inf, G_g, a0))
 
 
 def _lift_D(ratio, tau, decay):
@@ -163,8 +163,7 @@ def _lift_bound(ratio, tau, h_crit, hold):
 
 # Gauss-Legendre nodes and weights on [0, 1] (the front's part of the relaxed start's
 # separation work, module docstring)
-_GL_U, _GL_W = np.polynomial.legendre.leggauss(32)
-_GL_U, _GL_W = 0.5 * (_GL_U + 1.0), 0.5 * _GL_W
+_GL_U, _GL_W = gauss_legendre_unit(32)
 
 
 class _RelaxedEvents(eqx.Module):
@@ -180,13 +179,12 @@ class _RelaxedEvents(eqx.Module):
 def _relaxed_events(front: _Front, profile) -> _RelaxedEvents:
     """Jump-off, largest tensile force and separation work of a constant-speed lift ($v =
     d_0 = 1$) from the relaxed contact at the touch radius, without sampling the curve."""
-    G_inf, ratio, tau, c = front.G_inf, front.ratio, front.tau, front.c
-    a_fold, h_crit, a0 = front.a_fold, front.h_crit, front.a0
-    a_crit = jnp.minimum(a_fold, a0)
-    can_recede = a0 > a_fold
+    G_inf, ratio, tau, a0 = front.G_inf, front.ratio, front.tau, front.a0
+    rf = front.relaxed
+    c, a_fold, a_crit, h_crit, can_recede = rf.c, rf.a_fold, rf.a_crit, rf.h_crit, rf.can_recede
     # the edge stays pinned down to D = h(a0), or to the jump-off where the front cannot
     # recede (a0 <= a_fold, e.g. a flat punch)
-    h_pin = jnp.where(can_recede, front_displacement(profile, a0, c), h_crit)
+    h_pin = jnp.where(can_recede, rf.h_pin, h_crit)
     y0 = profile.integral_g(a0) / a0  # the pinned force vanishes at D = y0
     D = _lift_D(ratio, tau, jnp.zeros_like(tau))
 
@@ -220,7 +218,7 @@ def _relaxed_events(front: _Front, profile) -> _RelaxedEvents:
     a = profile.front_radius(m, c, a_fold, jnp.maximum(a0, 2 * a_fold))
     w_front = U * jnp.sum(jnp.asarray(_GL_W, T_b.dtype) * -front_force(a) * 2.0 * u)
     # the largest tensile force: the minimum of F_f over the radii the front visits
-    a_fc = profile.critical_radius(c, 1.5)
+    a_fc = rf.a_fc
     return _RelaxedEvents(
         jumpoff_time=T_b,
         jumpoff_radius=a_crit,
@@ -400,8 +398,8 @@ class RelaxedStart(AbstractSweepModel):
     name: ClassVar[str] = "relaxed"
 
     def cpu_chunk_budget(self, curves: bool) -> int:
-        # chunks near the CPU's caches (benchmarks/results/sweep.md): with the curves 32 MiB
-        # (1.6-2x faster than 512 MiB), the summaries alone 8 MiB (1.4x faster than 32 MiB)
+        # chunks near the CPU's caches: 32 MiB with the curves, 8 MiB for the summaries alone
+        # (the measurements: benchmarks/results/sweep.md, "Chunk size")
         return (32 if curves else 8) * 2**20
 
     def solve(self, rheology, profile, p, *, curves=False):
@@ -432,7 +430,7 @@ class RelaxedStart(AbstractSweepModel):
                           ts=ts, contact_radius=front.a0, throw=False)
             # the curve's own failure: non-finite samples (retract's other results, e.g. an
             # advancing contact, cannot occur on this lift; not reading `sol.result` lets XLA
-            # drop its events, which the exact summaries replace: 7.2 -> 6.3 ms per 768 x 500)
+            # drop its events, which the exact summaries replace; benchmarks/bench_sweep.py)
             finite = jnp.all(jnp.isfinite(sol.force)) & jnp.all(jnp.isfinite(sol.contact_radius))
             result = RESULTS.where(finite, result, RESULTS.non_finite_result)
             out = dict(time=ts, displacement=sol.displacement, force=sol.force,
@@ -450,8 +448,8 @@ class RelaxedStart(AbstractSweepModel):
 
     def floats_per_curve(self, arms: int, curves: bool) -> int:
         # the summaries: the quadrature's nodes and the roots (XLA's compiled memory: 98
-        # floats with one arm and 32 nodes); with the curves, `retract`'s samples (6.3
-        # floats per sample with one arm, benchmarks/bench_sweep.py), with a margin, and
+        # floats with one arm and 32 nodes); with the curves, `retract`'s samples (floats per
+        # sample: benchmarks/results/sweep.md, XLA's compiled memory), with a margin, and
         # the curves' outputs
         summaries = 4 * len(_GL_U) + 16 * arms + 16
         return summaries + (int(self.samples) * (12 + 2 * arms) if curves else 0)

@@ -1,7 +1,9 @@
 r"""The parameters a sweep may vary: names, units, validation, the objects they build and the
 units in which a point is computed.
 
-**Vocabulary** (SI units; every value a scalar (fixed) or a 1-D array (swept)):
+**Vocabulary** (SI units; every value a scalar (fixed) or a 1-D array (swept); names, units,
+kinds and bounds from the registry `jaxcontact._vocabulary`, which the fits and the command
+line share):
 
 - material (one family): `G0`, `G1`, `eta1`, the standard model in creep form
   (`StandardModel`); or `G_inf` with arms `G_1`, `tau_1`, ..., `G_N`, `tau_N`, a Prony series
@@ -27,7 +29,6 @@ and the same relative resolution everywhere.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -38,53 +39,22 @@ from .._probes import Sphere
 from .._profiles import Cone, FlatPunch, Parabola
 from .._rheology import PronySeries, StandardModel
 from .._validate import plain
+from .._vocabulary import ARM_PATTERN, Parameter, parameter
 
 __all__ = ["Parameter", "ParameterSpec", "parameter_info", "parse_spec", "INVALID_REASONS"]
 
 
-@dataclass(frozen=True)
-class Parameter:
-    """One sweepable parameter: unit, physical dimension (for the scaling) and meaning."""
-
-    name: str
-    unit: str
-    dimension: str  # length, modulus, time, viscosity, adhesion, velocity, angle
-    long_name: str
-    allow_zero: bool = False
-    upper: float | None = None
-
-
-_FIXED = {
-    "G0": Parameter("G0", "Pa", "modulus", "glass shear modulus G0 (standard model)"),
-    "G1": Parameter("G1", "Pa", "modulus", "Kelvin-element shear modulus G1 (standard model)"),
-    "eta1": Parameter("eta1", "Pa s", "viscosity", "Kelvin-element viscosity eta1"),
-    "G_inf": Parameter("G_inf", "Pa", "modulus", "relaxed shear modulus G_inf (Prony series)"),
-    "R": Parameter("R", "m", "length", "indenter radius of curvature R (paraboloid)"),
-    "sphere_radius": Parameter("sphere_radius", "m", "length", "exact sphere radius R"),
-    "half_angle": Parameter("half_angle", "rad", "angle", "cone half-opening angle",
-                            upper=math.pi / 2),
-    "punch_radius": Parameter("punch_radius", "m", "length", "flat punch radius"),
-    "work_of_adhesion": Parameter("work_of_adhesion", "J/m^2", "adhesion",
-                                  "work of adhesion (delta gamma)"),
-    "depth": Parameter("depth", "m", "length", "indentation depth before the lift d0"),
-    "velocity": Parameter("velocity", "m/s", "velocity", "lift speed v"),
-    "hold": Parameter("hold", "s", "time", "hold time at the depth", allow_zero=True),
-    "approach_velocity": Parameter("approach_velocity", "m/s", "velocity", "approach speed"),
-}
-_ARM = re.compile(r"^(G|tau)_([1-9][0-9]*)$")
+#: The parameters a sweep may vary (their units, kinds and bounds: the registry,
+#: `jaxcontact._vocabulary`), besides the Prony arms `G_k`, `tau_k`.
+SWEEPABLE = ("G0", "G1", "eta1", "G_inf", "R", "sphere_radius", "half_angle", "punch_radius",
+             "work_of_adhesion", "depth", "velocity", "hold", "approach_velocity")
 
 
 def parameter_info(name: str) -> Parameter:
     """The `Parameter` of a sweep parameter name (`ValueError` for an unknown name)."""
-    if name in _FIXED:
-        return _FIXED[name]
-    m = _ARM.match(name)
-    if m:
-        k = m.group(2)
-        if m.group(1) == "G":
-            return Parameter(name, "Pa", "modulus", f"Prony arm {k} shear modulus G_{k}")
-        return Parameter(name, "s", "time", f"Prony arm {k} relaxation time tau_{k}")
-    known = ", ".join([*_FIXED, "G_k", "tau_k"])
+    if name in SWEEPABLE or ARM_PATTERN.match(name):
+        return parameter(name)
+    known = ", ".join([*SWEEPABLE, "G_k", "tau_k"])
     raise ValueError(f"unknown sweep parameter {name!r}; known: {known}.")
 
 
@@ -169,7 +139,7 @@ class _ProfileFamily:
 
 def _material_family(names):
     standard = [n for n in _StandardFamily().names if n in names]
-    prony = [n for n in names if n == "G_inf" or _ARM.match(n)]
+    prony = [n for n in names if n == "G_inf" or ARM_PATTERN.match(n)]
     if standard and prony:
         raise ValueError(
             f"sweep parameters mix two material families: {standard} (standard model) and "
@@ -187,7 +157,7 @@ def _material_family(names):
         )
     if "G_inf" not in names:
         raise ValueError("a Prony series needs G_inf (the relaxed modulus) [Pa].")
-    ks = sorted({int(_ARM.match(n).group(2)) for n in prony if n != "G_inf"})
+    ks = sorted({int(ARM_PATTERN.match(n).group(2)) for n in prony if n != "G_inf"})
     arms = len(ks)
     if ks != list(range(1, arms + 1)):
         raise ValueError(f"Prony arms must be numbered 1..N without gaps; got {ks}.")

@@ -30,8 +30,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
-import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
@@ -40,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from .._progress import Progress
 from .._validate import plausibility_checks, unchecked
 
 __all__ = ["run_points", "default_precision", "chunk_size_for", "SUMMARY_FIELDS", "CURVE_FIELDS"]
@@ -62,7 +61,7 @@ def default_precision() -> str:
 @lru_cache(maxsize=8)
 def _memory_limit(device) -> int | None:
     """The device's memory limit [bytes], None where the backend reports none (the CPU);
-    asked once per device (the query costs 0.2 ms, a tenth of a small sweep)."""
+    asked once per device (the query costs a noticeable part of a small sweep)."""
     try:
         stats = device.memory_stats()
     except Exception:  # noqa: BLE001 - backends without memory statistics
@@ -138,36 +137,6 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
     return fn, sharding
 
 
-class _Progress:
-    """A progress line on stderr: percent, curves, elapsed and remaining time."""
-
-    def __init__(self, total, chunks, enabled, label="sweep"):
-        self.total, self.chunks, self.label = total, chunks, label
-        self.enabled = enabled
-        self.tty = enabled and hasattr(sys.stderr, "isatty") and sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-        self.last = -math.inf
-
-    def update(self, done_chunks, done_points):
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        final = done_chunks == self.chunks
-        if not final and now - self.last < (0.2 if self.tty else 5.0):
-            return
-        self.last = now
-        elapsed = now - self.t0
-        frac = done_points / self.total
-        left = elapsed * (1 - frac) / frac if frac > 0 else math.nan
-        text = (f"{self.label}: {100 * frac:5.1f}% ({done_points:,}/{self.total:,} curves, "
-                f"chunk {done_chunks}/{self.chunks}), {elapsed:.1f} s"
-                + ("" if final else f", ~{left:.0f} s left"))
-        if self.tty:
-            print("\r" + text, end="\n" if final else "", file=sys.stderr, flush=True)
-        else:
-            print(text, file=sys.stderr, flush=True)
-
-
 def _fetch(outs):
     """The outputs of several chunks to the host, in one call (one gather across processes)."""
     if jax.process_count() > 1:
@@ -208,7 +177,7 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
     curve_out: dict | None = {} if curves else None
     with jax.enable_x64(dtype.name == "float64"):
         fn, sharding = _compiled(model, material, profile, names, curves, devices, dtype.name)
-        bar = _Progress(n_points, n_chunks, progress and jax.process_index() == 0)
+        bar = Progress(progress and jax.process_index() == 0, "sweep", total=n_points)
 
         def prepare(i):
             lo = i * chunk
@@ -253,9 +222,10 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
                 nxt = launch(i) if i < n_chunks else None  # dispatched asynchronously
                 if pending is not None:
                     (packed, curve_dev), lo, hi = pending
-                    # at most two chunks in flight (this one and the next, just dispatched): more
-                    # would run side by side on the CPU and leave its caches (1.8x slower at 10^5
-                    # points); the summaries stay on the device until `flush`
+                    # at most two chunks in flight (this one and the next, just dispatched):
+                    # more would run side by side on the CPU and leave its caches (slower: the
+                    # chunk measurements in benchmarks/results/sweep.md); the summaries stay
+                    # on the device until `flush`
                     packed.block_until_ready()
                     waiting.append((packed, lo, hi))
                     if curves:
@@ -268,13 +238,13 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
                     if curves or len(waiting) * packed.nbytes >= _FETCH_BYTES:
                         flush()
                     done = hi
-                    bar.update(i, done)
+                    bar.update(done, detail=f"chunk {i}/{n_chunks}")  # the final line: below
                 pending = nxt
             if waiting:
                 flush()
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
-        bar.update(n_chunks, n_points)
+        bar.update(n_points, detail=f"chunk {n_chunks}/{n_chunks}", final=True)
     return summaries, curve_out, dict(chunk_size=chunk, chunks=n_chunks, devices=n_dev,
                                       processes=jax.process_count())

@@ -207,7 +207,7 @@ def sweep(
         checked = [*((n, a) for n, a in spec.coords.items()),
                    *((n, np.float64(a)) for n, a in spec.fixed.items())]
         for n, a in checked:
-            kind = _PLAUSIBLE_KIND.get(parameter_info(n).dimension)
+            kind = _PLAUSIBLE_KIND.get(parameter_info(n).kind)
             if kind is None:
                 continue
             if on_error == "status" and np.ndim(a) == 1:
@@ -238,7 +238,7 @@ def sweep(
     # ---- the points in their own units (float64), chunk by chunk -----------------------------
     v = spec.values
     names = tuple(sorted(v))
-    dims_of = {n: parameter_info(n).dimension for n in names}
+    dims_of = {n: parameter_info(n).kind for n in names}
     substitute = 0 if good is None else int(np.flatnonzero(good)[0])
 
     @np.errstate(all="ignore")  # a flagged point's values are replaced below

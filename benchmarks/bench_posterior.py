@@ -5,16 +5,17 @@ drawn at random (log-uniform: G0 in [5, 20] kPa, G1/G0 in [0.3, 0.7], tau = eta1
 [0.5, 3] s, work of adhesion in [0.5, 2] mJ/m^2), each gives three retract curves of the
 relaxed model (`jaxcontact.retract`, parabola R = 12 um, relaxed depth 1 um, lift speeds
 0.5, 2 and 8 um/s, 40 samples each) with Gaussian noise of 1 % of each curve's force range.
-Every set is fitted (`fitting.fit`, contact offset fitted: its truth is 0) and sampled
+Every set is fitted (`fitting.fit` with its default search, contact offset fitted: its
+truth is 0) and sampled
 (`fitting.sample`, `--draws` x `--chains` after `--warmup` warm-up draws). Per parameter the
 table gives the fraction of curves whose 90 % credible interval (5-95 % quantiles)
 contains the truth (acceptance: 80-97 %), the largest R-hat and the smallest bulk ESS over
 the curves (acceptance: R-hat <= 1.01, bulk ESS >= 400), divergences, and the time per
 curve of the sampler (the first curve's, compilation included, apart).
 
-`--real FILE ...`: also sample the posterior of the shipped real curves (history model,
-contact point fitted, as `jaxcontact fit` fits them) and put the posterior beside the
-linearised errors.
+`--real FILE ...`: also sample the posterior of the shipped real curves (`--real-model`,
+default relaxed as `jaxcontact fit`; contact point fitted, as for instrument files;
+`--real-draws` per chain) and put the posterior beside the linearised errors.
 
     python benchmarks/bench_posterior.py [--curves 50] [--draws 1000] [--chains 4]
         [--real tests/data/...] [--out benchmarks/results/posterior.md]
@@ -89,8 +90,7 @@ def run_synthetic(args) -> list[dict]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t0 = time.perf_counter()
-            res = fitting.fit(data, radius=R, contact_point="fit", n_starts=8,
-                              local_rounds=1, progress=False)
+            res = fitting.fit(data, radius=R, contact_point="fit", progress=False)
             t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
@@ -136,8 +136,7 @@ def run_timing(args) -> None:
         data = curves(p, rng)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = fitting.fit(data, radius=R, contact_point="fit", n_starts=8,
-                              local_rounds=1, progress=False)
+            res = fitting.fit(data, radius=R, contact_point="fit", progress=False)
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
                                   warmup=args.warmup, predictive=False, warn=False)
@@ -154,12 +153,13 @@ def run_real(files, args) -> list[str]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t0 = time.perf_counter()
-            res = fitting.fit(curve, radius=args.radius, model="history", progress=False)
+            res = fitting.fit(curve, radius=args.radius, model=args.real_model, progress=False)
             post = fitting.sample(res, draws=args.real_draws, chains=args.chains, seed=0,
                                   warmup=args.warmup, predictive=False, warn=False)
             dt = time.perf_counter() - t0
         name = pathlib.Path(f).name
-        rows.append(f"\n**{name}** (history model, standard rheology, radius {args.radius:g} m;"
+        rows.append(f"\n**{name}** ({args.real_model} model, standard rheology, radius "
+                    f"{args.radius:g} m;"
                     f" {args.chains} x {args.real_draws} draws, {post.divergences} "
                     f"divergences; fit + sampling {dt:.0f} s; "
                     f"reduced chi2 of the fit {res.reduced_chi2:.4g})\n")
@@ -239,6 +239,7 @@ def main(argv=None) -> int:
     ap.add_argument("--real", nargs="*", default=[])
     ap.add_argument("--real-draws", type=int, default=500)
     ap.add_argument("--radius", type=float, default=10e-6)
+    ap.add_argument("--real-model", choices=("relaxed", "history"), default="relaxed")
     ap.add_argument("--records", default="benchmarks/results/posterior_records.jsonl")
     ap.add_argument("--out", default="benchmarks/results/posterior.md")
     ap.add_argument("--no-table", action="store_true")

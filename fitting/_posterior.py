@@ -666,8 +666,8 @@ def _potential_fn(ctx: _Context):
 def _run_chains(ctx, inits, keys, *, warmup, draws, target_accept, max_tree_depth):
     """NUTS (numpyro's kernel, dense mass matrix adapted in the warm-up from the identity,
     gradients in forward mode) from every row of `inits` (whitened), chains vectorised:
-    `(eta, diverging,
-    num_steps, accept_prob, energy, potential_energy)`, each `(chains, draws, ...)`."""
+    `(eta, diverging, num_steps, accept_prob, energy, potential_energy)`, each `(chains,
+    draws, ...)` (the warm-up dropped)."""
     from numpyro.infer.hmc import hmc
 
     init_kernel, sample_kernel = hmc(potential_fn_gen=_potential_fn, algo="NUTS")
@@ -684,9 +684,9 @@ def _run_chains(ctx, inits, keys, *, warmup, draws, target_accept, max_tree_dept
             return s, (s.z, s.diverging, s.num_steps, s.accept_prob, s.energy,
                        s.potential_energy)
 
-        state, _ = jax.lax.scan(lambda s, x: (step(s, x)[0], None), state, None,
-                                length=warmup)
-        return jax.lax.scan(step, state, None, length=draws)[1]
+        # one scan over the warm-up and the draws (the model compiled once in the loop)
+        out = jax.lax.scan(step, state, None, length=warmup + draws)[1]
+        return jax.tree.map(lambda x: x[warmup:], out)
 
     return jax.vmap(chain)(inits, keys)
 

@@ -6,6 +6,11 @@ several curves (a force map, a QI series) or ``--each`` fits every curve on its 
 ``map.nc`` (xarray/netCDF, one row per curve with its grid position), ``map.csv``,
 ``parameters.json`` (settings and counts) and ``map.png`` (a map image per parameter).
 
+``--posterior`` (one fit, not ``--each``) samples the posterior of the fit's free
+parameters afterwards (:func:`fitting.sample`, NUTS; ``--draws``, ``--chains``) and adds
+``posterior.nc`` (the ArviZ groups), ``posterior.json``, ``posterior.csv``, ``corner.png``
+and the posterior band on ``fit.png``; the summary is printed after the fit's.
+
 Instrument files are read through afmformats (:func:`fitting.load_curve` decides by the
 file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-constant`` given
 with an instrument file overrides the file's value and selects the compliant loading model.
@@ -403,7 +408,9 @@ def _run_posterior(args, folder, curves, options) -> int:
         if not args.quiet:
             print(f"[posterior] NUTS: {args.chains} chain(s) x {args.draws} draws after "
                   f"{args.draws} warm-up (compiles first)", file=sys.stderr, flush=True)
-        return fitting.sample(result, draws=args.draws, chains=args.chains, warn=False)
+        # the posterior band is drawn on fit.png only
+        return fitting.sample(result, draws=args.draws, chains=args.chains, warn=False,
+                              predictive=not args.no_figure)
 
     def write(post, staging):
         fitting.write_report(post.fit, staging)

@@ -236,14 +236,15 @@ def plot_corner(posterior, path=None, *, max_points: int = 2000):
     """Corner plot of a :class:`fitting.PosteriorResult`: the marginal histogram of every
     sampled parameter on the diagonal (the 5 %, 50 % and 95 % quantiles dashed, the fit's
     optimum and linearised ±1 standard error in red), the draws of every pair below it
-    (at most `max_points`, all chains). Positive parameters on logarithmic axes (the
-    sampled coordinate); offsets linear. Saved to `path` (PNG) if given; returns the
+    (at most `max_points`, all chains). Positive parameters spread over more than a
+    decade on logarithmic axes, the others linear. Saved to `path` (PNG) if given; returns the
     figure."""
     import matplotlib
 
     if path is not None:
         matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     names = list(posterior.names)
     k = len(names)
@@ -251,7 +252,9 @@ def plot_corner(posterior, path=None, *, max_points: int = 2000):
     draws = {n: np.asarray(posterior.samples[n]).ravel() for n in names}
     n_all = len(next(iter(draws.values())))
     pick = np.random.default_rng(0).choice(n_all, size=min(n_all, max_points), replace=False)
-    log = {n: bool(np.all(draws[n] > 0)) and not n.endswith("offset") for n in names}
+    # logarithmic axes for positive parameters spread over more than a decade
+    log = {n: bool(np.all(draws[n] > 0)) and not n.endswith("offset")
+           and float(np.max(draws[n]) / np.min(draws[n])) > 10.0 for n in names}
     fig, ax = plt.subplots(k, k, figsize=(2.0 * k + 1, 2.0 * k + 1), squeeze=False)
     for i, ni in enumerate(names):
         for j, nj in enumerate(names):
@@ -291,6 +294,9 @@ def plot_corner(posterior, path=None, *, max_points: int = 2000):
                 a.set_ylabel(f"{ni} [{unit}]" if unit != "1" else ni, fontsize=8)
             elif i != j:
                 a.set_yticklabels([])
+            for axis, name in ((a.xaxis, nj), (a.yaxis, ni))[:1 if i == j else 2]:
+                if not log[name]:
+                    axis.set_major_locator(MaxNLocator(3))
             a.tick_params(labelsize=6)
     fig.suptitle(f"posterior: NUTS, {posterior.chains} chains x {posterior.draws} draws, "
                  f"{posterior.divergences} divergences (red: fit ± linearised error)",

@@ -4,7 +4,7 @@ its diagnostics against known cases, the netCDF groups, the command line.
 One small synthetic relaxed problem (2 retract curves x 40 samples, 2 chains x 150 draws)
 serves the default-run tests: one compilation of the fit and one of the sampler (about 50 s
 of CPU on the 2-core machine, nearly all compilation; the command-line test reuses both).
-The posterior band, the figures and a one-sided parameter are slow tests.
+The posterior band and the figures are a slow test.
 """
 
 import json
@@ -186,20 +186,6 @@ def test_identifiability_words():
     assert identifiability(rng.uniform(-5.0, 5.0, 4000), -5.0, 5.0) == "not determined"
     # wide but inside the bounds: not determined (sd above the fit's limit 0.5)
     assert identifiability(rng.normal(0.0, 1.0, 4000), -20.0, 20.0) == "not determined"
-
-
-@pytest.mark.slow
-def test_no_detachment_bounds_the_work_of_adhesion_from_below_only():
-    """A lift too short to detach (the contact front never recedes to the jump-off): the
-    data bound the work of adhesion only from below (the fit says so too)."""
-    curves = _curves(lift=0.3e-6, speeds=(0.5e-6, 4e-6))
-    res = _fit(curves)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fitting.PosteriorWarning)
-        post = fitting.sample(res, draws=300, chains=2, prior="uniform")
-    assert post.row("work_of_adhesion")["identifiability"] in (
-        "bounded from below only", "not determined")
-    assert post.row("G0")["identifiability"] == "determined"
 
 
 def test_cli_posterior_writes_listed_files(tmp_path, fit_result, capsys):

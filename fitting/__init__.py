@@ -6,7 +6,8 @@ Data in: :class:`Curve` and the loaders :func:`load_curve`, :func:`load_csv`,
 :func:`load_afm` with :func:`preprocess` (baseline, tip position, contact point).
 Identification: :func:`fit` (global search, uncertainty) → :class:`FitResult`;
 :func:`write_report` (``parameters.json``, ``parameters.csv``, ``fit.csv``);
-:func:`profile_likelihood`; :func:`fit_each` (force maps, many curves: one fit per
+:func:`profile_likelihood`; :func:`sample` (the posterior of a fit by NUTS,
+numpyro) → :class:`PosteriorResult`; :func:`fit_each` (force maps, many curves: one fit per
 curve in batched compiled calls) → :class:`FitEachResult`; :func:`solve` /
 :func:`solve_batch` for many problems.
 """
@@ -40,6 +41,9 @@ from ._optimise import solve as solve
 from ._optimise import solve_batch as solve_batch
 from ._parameters import Parameterisation as Parameterisation
 from ._parameters import make_parameterisation as make_parameterisation
+from ._posterior import PosteriorResult as PosteriorResult
+from ._posterior import PosteriorWarning as PosteriorWarning
+from ._posterior import sample as sample
 from ._prepare import CurveBatch as CurveBatch
 from ._prepare import check_segments as check_segments
 from ._prepare import prepare_curves as prepare_curves
@@ -78,7 +82,7 @@ def _run_in_float64() -> None:
              "stack_batches", "initial_guess", "data_scales", "default_bounds",
              "make_parameterisation", "make_spec", "resample", "select_segments",
              "infer_segments", "load_curve", "load_csv", "load_afm", "write_report",
-             "write_each_report", "result_table")
+             "write_each_report", "result_table", "sample")
     for name in names:
         globals()[name] = float64_scope(globals()[name])
 

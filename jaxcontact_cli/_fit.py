@@ -6,6 +6,11 @@ several curves (a force map, a QI series) or ``--each`` fits every curve on its 
 ``map.nc`` (xarray/netCDF, one row per curve with its grid position), ``map.csv``,
 ``parameters.json`` (settings and counts) and ``map.png`` (a map image per parameter).
 
+``--posterior`` (one fit, not ``--each``) samples the posterior of the fit's free
+parameters afterwards (:func:`fitting.sample`, NUTS; ``--draws``, ``--chains``) and adds
+``posterior.nc`` (the ArviZ groups), ``posterior.json``, ``posterior.csv``, ``corner.png``
+and the posterior band on ``fit.png``; the summary is printed after the fit's.
+
 Instrument files are read through afmformats (:func:`fitting.load_curve` decides by the
 file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-constant`` given
 with an instrument file overrides the file's value and selects the compliant loading model.
@@ -174,7 +179,18 @@ def add_fit_arguments(parser):
                             "several single-curve files: e.g. different speeds)")
     parser.add_argument("--chunk", type=int, default=8, metavar="N",
                         help="with --each: curves per compiled call (default 8)")
-    parser.add_argument("--no-figure", action="store_true", help="skip fit.png / map.png")
+    parser.add_argument("--posterior", action="store_true",
+                        help="after the fit, sample the posterior of its free parameters by "
+                             "NUTS (fitting.sample; needs numpyro): posterior.nc (ArviZ "
+                             "groups), posterior.json, posterior.csv, corner.png and the "
+                             "posterior band on fit.png; not with --each")
+    parser.add_argument("--draws", type=int, default=1000, metavar="N",
+                        help="with --posterior: draws per chain after as many warm-up draws "
+                             "(default 1000)")
+    parser.add_argument("--chains", type=int, default=4, metavar="K",
+                        help="with --posterior: chains, vectorised (default 4)")
+    parser.add_argument("--no-figure", action="store_true",
+                        help="skip fit.png / map.png (and corner.png)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     return parser
@@ -285,6 +301,19 @@ def _check(args):
     if args.max_samples is not None and args.max_samples < 4:
         raise UsageError(f"argument --max-samples: must be an integer >= 4; got "
                          f"{args.max_samples}")
+    if getattr(args, "posterior", False):
+        if args.draws < 10:
+            raise UsageError(f"argument --draws: must be an integer >= 10; got {args.draws}")
+        if args.chains < 1:
+            raise UsageError(f"argument --chains: must be an integer >= 1; got {args.chains}")
+        if args.each:
+            raise UsageError("argument --posterior: not with --each (one posterior per fit; "
+                             "sample the curves one by one)")
+        try:
+            import numpyro  # noqa: F401
+        except ImportError:
+            raise UsageError("argument --posterior: needs numpyro (pip install "
+                             "'jaxcontact[posterior]')") from None
     check_number("--threshold", args.threshold, "noise sigma")
     if args.min_run is not None and args.min_run < 1:
         raise UsageError(f"argument --min-run: must be an integer >= 1; got {args.min_run}")
@@ -349,7 +378,12 @@ def run(args) -> int:
     else:
         options["profile"] = profile
     if each:
+        if getattr(args, "posterior", False):
+            raise UsageError("argument --posterior: not with a force map or --each (one "
+                             "posterior per fit; fit the curves one by one)")
         return _run_each(args, folder, curves, options)
+    if getattr(args, "posterior", False):
+        return _run_posterior(args, folder, curves, options)
     result, out = _fit_and_write(
         args, folder, lambda: fitting.fit(curves, **options), write=fitting.write_report,
         figure=("fit.png", "plot_fit"))
@@ -357,6 +391,43 @@ def run(args) -> int:
         conv = result.convergence
         print(f"jaxcontact fit: error: the fit did not converge: {conv.get('reason')}; its "
               f"best point is written to {out}, marked \"converged\": false; try: "
+              + "; ".join(conv.get("advice", [])), file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return 0
+
+
+def _run_posterior(args, folder, curves, options) -> int:
+    """``--posterior``: the fit, then :func:`fitting.sample` from its optimum; the fit's
+    report plus ``posterior.nc``, ``posterior.json``, ``posterior.csv``, ``corner.png`` and
+    ``fit.png`` with the posterior band. The sampler's warnings (divergences, R-hat, ESS)
+    are in the summary and ``posterior.json``."""
+    import fitting
+
+    def fit_and_sample():
+        result = fitting.fit(curves, **options)
+        if not args.quiet:
+            print(f"[posterior] NUTS: {args.chains} chain(s) x {args.draws} draws after "
+                  f"{args.draws} warm-up (compiles first)", file=sys.stderr, flush=True)
+        # the posterior band is drawn on fit.png only
+        return fitting.sample(result, draws=args.draws, chains=args.chains, warn=False,
+                              predictive=not args.no_figure)
+
+    def write(post, staging):
+        fitting.write_report(post.fit, staging)
+        post.to_netcdf(staging / "posterior.nc")
+        post.to_json(staging / "posterior.json")
+        post.to_csv(staging / "posterior.csv")
+        if not args.no_figure:
+            from . import _plots
+
+            _plots.plot_corner(post, staging / "corner.png")
+
+    post, out = _fit_and_write(args, folder, fit_and_sample, write=write,
+                               figure=("fit.png", "plot_fit_posterior"))
+    if not post.fit.converged:
+        conv = post.fit.convergence
+        print(f"jaxcontact fit: error: the fit did not converge: {conv.get('reason')}; its "
+              f"best point and the posterior around it are written to {out}; try: "
               + "; ".join(conv.get("advice", [])), file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return 0
@@ -390,6 +461,8 @@ def _fit_and_write(args, folder, fit, *, write, figure, check=None):
     finally:
         folder.discard()
     if not args.quiet:
+        if isinstance(result, fitting.PosteriorResult):
+            print(result.fit.summary())
         print(result.summary())
         print(f"written to {out}")
     return result, out

@@ -7,7 +7,7 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["plot_fit", "plot_map"]
+__all__ = ["plot_fit", "plot_map", "plot_corner", "plot_fit_posterior"]
 
 _SEGMENT_COLOURS = {"approach": "tab:blue", "hold": "tab:orange", "retract": "tab:green"}
 _SEGMENTS = ("approach", "hold", "retract")
@@ -250,3 +250,110 @@ def plot_map(result, path=None):
         plt.close(fig)
     return fig
 
+
+
+def plot_corner(posterior, path=None, *, max_points: int = 2000):
+    """Corner plot of a :class:`fitting.PosteriorResult`: the marginal histogram of every
+    sampled parameter on the diagonal (the 5 %, 50 % and 95 % quantiles dashed, the fit's
+    optimum and linearised ±1 standard error in red), the draws of every pair below it
+    (at most `max_points`, all chains). Positive parameters spread over more than a
+    decade on logarithmic axes, the others linear. Saved to `path` (PNG) if given; returns the
+    figure."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    names = list(posterior.names)
+    k = len(names)
+    rows = {r["name"]: r for r in posterior.rows}
+    draws = {n: np.asarray(posterior.samples[n]).ravel() for n in names}
+    n_all = len(next(iter(draws.values())))
+    pick = np.random.default_rng(0).choice(n_all, size=min(n_all, max_points), replace=False)
+    # logarithmic axes for positive parameters spread over more than a decade
+    log = {n: bool(np.all(draws[n] > 0)) and not n.endswith("offset")
+           and float(np.max(draws[n]) / np.min(draws[n])) > 10.0 for n in names}
+    fig, ax = plt.subplots(k, k, figsize=(2.0 * k + 1, 2.0 * k + 1), squeeze=False)
+    for i, ni in enumerate(names):
+        for j, nj in enumerate(names):
+            a = ax[i, j]
+            if j > i:
+                a.axis("off")
+                continue
+            if i == j:
+                x = draws[ni]
+                bins = (np.geomspace(x.min(), x.max(), 40) if log[ni] and x.min() < x.max()
+                        else 40)
+                a.hist(x, bins=bins, color="tab:blue", alpha=0.7)
+                r = rows[ni]
+                for q in (r["q05"], r["median"], r["q95"]):
+                    a.axvline(q, color="k", ls="--", lw=0.8)
+                if r["fit_status"] == "ok" and math.isfinite(r["fit_stderr"]):
+                    a.axvspan(r["fit_value"] - r["fit_stderr"], r["fit_value"] + r["fit_stderr"],
+                              color="tab:red", alpha=0.15)
+                if math.isfinite(r["fit_value"]):
+                    a.axvline(r["fit_value"], color="tab:red", lw=1.0)
+                a.set_yticks([])
+                a.set_title(f"{ni}: {r['identifiability']}", fontsize=7)
+            else:
+                a.plot(draws[nj][pick], draws[ni][pick], ".", ms=1.5, alpha=0.4,
+                       color="tab:blue")
+                if log[ni]:
+                    a.set_yscale("log")
+            if log[nj]:
+                a.set_xscale("log")
+            if i == k - 1:
+                unit = rows[nj]["unit"]
+                a.set_xlabel(f"{nj} [{unit}]" if unit != "1" else nj, fontsize=8)
+            else:
+                a.set_xticklabels([])
+            if j == 0 and i > 0:
+                unit = rows[ni]["unit"]
+                a.set_ylabel(f"{ni} [{unit}]" if unit != "1" else ni, fontsize=8)
+            elif i != j:
+                a.set_yticklabels([])
+            for axis, name in ((a.xaxis, nj), (a.yaxis, ni))[:1 if i == j else 2]:
+                if not log[name]:
+                    axis.set_major_locator(MaxNLocator(3))
+            a.tick_params(labelsize=6)
+    fig.suptitle(f"posterior: NUTS, {posterior.chains} chains x {posterior.draws} draws, "
+                 f"{posterior.divergences} divergences (red: fit ± linearised error)",
+                 fontsize=9)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+    return fig
+
+
+def plot_fit_posterior(posterior, path=None):
+    """:func:`plot_fit` of the posterior's fit with the posterior band of the model force
+    (5-95 % over draws, grey; the noise not included) on the force panels. Saved to `path`
+    (PNG) if given; returns the figure."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    fig = plot_fit(posterior.fit)
+    band = posterior.predictive
+    if band is not None:
+        data = posterior.fit.data
+        valid = np.asarray(data.valid) > 0
+        ts, d = np.asarray(data.ts), np.asarray(data.indentation)
+        a_t, a_d = fig.axes[0], fig.axes[1]
+        for c in range(data.n_curves):
+            m = valid[c] & np.isfinite(band[0, c]) & np.isfinite(band[2, c])
+            lab = "posterior 5-95 %" if c == 0 else None
+            a_t.fill_between(ts[c, m], band[0, c, m] * 1e9, band[2, c, m] * 1e9,
+                             color="0.4", alpha=0.35, lw=0, label=lab, zorder=3)
+            a_d.fill_between(d[c, m] * 1e6, band[0, c, m] * 1e9, band[2, c, m] * 1e9,
+                             color="0.4", alpha=0.35, lw=0, zorder=3)
+        a_t.legend(fontsize=8, loc="best")
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig

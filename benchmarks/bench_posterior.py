@@ -1,0 +1,278 @@
+"""Calibration of `fitting.sample` (NUTS posterior) on synthetic curves of known parameters.
+
+Simulation-based calibration in its simplest form: `--curves` sets of true parameters are
+drawn at random (log-uniform: G0 in [5, 20] kPa, G1/G0 in [0.3, 0.7], tau = eta1/G1 in
+[0.5, 3] s, work of adhesion in [0.5, 2] mJ/m^2), each gives three retract curves of the
+relaxed model (`jaxcontact.retract`, parabola R = 12 um, relaxed depth 1 um, lift speeds
+0.5, 2 and 8 um/s, 40 samples each) with Gaussian noise of 1 % of each curve's force range.
+Every set is fitted (`fitting.fit` with its default search, contact offset fitted: its
+truth is 0) and sampled
+(`fitting.sample`, `--draws` x `--chains` after `--warmup` warm-up draws). Per parameter the
+table gives the fraction of curves whose 90 % credible interval (5-95 % quantiles)
+contains the truth (acceptance: 80-97 %), the largest R-hat and the smallest bulk ESS over
+the curves (acceptance: R-hat <= 1.01, bulk ESS >= 400), divergences, and the time per
+curve of the sampler (the first curve's, compilation included, apart).
+
+`--real FILE ...`: also sample the posterior of the shipped real curves (`--real-model`,
+default relaxed as `jaxcontact fit`; contact point fitted, as for instrument files;
+`--real-draws` per chain) and put the posterior beside the linearised errors.
+
+    python benchmarks/bench_posterior.py [--curves 50] [--draws 1000] [--chains 4]
+        [--real tests/data/...] [--out benchmarks/results/posterior.md]
+
+The per-curve records go to `--records` (JSON lines, appended as they come, so a long run
+can be followed and resumed: curves already recorded are skipped).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import sys
+import time
+import warnings
+
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
+
+import fitting  # noqa: E402
+import jaxcontact as jc  # noqa: E402
+from benchmarks._results import machine, write_table  # noqa: E402
+
+R = 12e-6
+D0 = 1e-6
+SPEEDS = (0.5e-6, 2e-6, 8e-6)
+N = 40
+NOISE = 0.01
+NAMES = ("G0", "G1", "eta1", "work_of_adhesion", "contact_offset")
+
+
+def truth(rng) -> dict:
+    g0 = math.exp(rng.uniform(math.log(5e3), math.log(20e3)))
+    g1 = g0 * math.exp(rng.uniform(math.log(0.3), math.log(0.7)))
+    tau = math.exp(rng.uniform(math.log(0.5), math.log(3.0)))
+    dg = math.exp(rng.uniform(math.log(0.5e-3), math.log(2e-3)))
+    return {"G0": g0, "G1": g1, "eta1": tau * g1, "work_of_adhesion": dg,
+            "contact_offset": 0.0}
+
+
+def curves(p: dict, rng) -> list:
+    out = []
+    for v in SPEEDS:
+        ts = np.linspace(0.0, 3e-6 / v, N)
+        sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
+                         work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=v)
+        f = np.asarray(sol.force)
+        f = f + NOISE * np.ptp(f) * rng.standard_normal(N)
+        out.append(fitting.Curve(time=ts, displacement=np.asarray(sol.displacement), force=f,
+                                 segment=np.zeros(N, int), segment_names=("retract",)))
+    return out
+
+
+def run_synthetic(args) -> list[dict]:
+    path = pathlib.Path(args.records)
+    done = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            rec = json.loads(line)
+            if (rec["draws"], rec["chains"], rec.get("warmup")) == (args.draws, args.chains,
+                                                                   args.warmup):
+                done[rec["curve"]] = rec
+    for i in range(args.curves):
+        rng = np.random.default_rng(1000 + i)
+        p = truth(rng)
+        if i in done:
+            continue
+        data = curves(p, rng)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t0 = time.perf_counter()
+            res = fitting.fit(data, radius=R, contact_point="fit", progress=False)
+            t_fit = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
+                                  warmup=args.warmup, predictive=False, warn=False)
+        t_sample = time.perf_counter() - t0
+        rec = {"curve": i, "draws": args.draws, "chains": args.chains,
+               "warmup": args.warmup, "truth": p,
+               "time_fit": t_fit, "time_sample": t_sample,
+               "time_mcmc": post.timings["mcmc"],
+               "divergences": post.divergences, "params": {}}
+        for n in NAMES:
+            r = post.row(n)
+            rec["params"][n] = {k: r[k] for k in ("mean", "sd", "q05", "q95", "r_hat",
+                                                  "ess_bulk", "ess_tail", "fit_value",
+                                                  "fit_stderr", "fit_status",
+                                                  "identifiability")}
+            rec["params"][n]["covered"] = bool(r["q05"] <= p[n] <= r["q95"])
+        for n in post.names[len(NAMES):]:  # the noise scale of every curve
+            r = post.row(n)
+            rec["params"][n] = {k: r[k] for k in ("mean", "sd", "q05", "q95", "r_hat",
+                                                  "ess_bulk", "ess_tail")}
+        with path.open("a") as fh:
+            fh.write(json.dumps(rec) + "\n")
+        done[i] = rec
+        cov = " ".join(f"{n}:{'y' if rec['params'][n]['covered'] else 'N'}" for n in NAMES)
+        print(f"curve {i}: sample {t_sample:.1f} s (mcmc {post.timings['mcmc']:.1f} s), "
+              f"fit {t_fit:.1f} s, divergences {post.divergences}, "
+              f"max R-hat {max(rec['params'][n]['r_hat'] for n in rec['params']):.4f}, "
+              f"min ESS {min(rec['params'][n]['ess_bulk'] for n in rec['params']):.0f}; "
+              f"{cov}", flush=True)
+    return [done[i] for i in range(args.curves) if i in done]
+
+
+def run_timing(args) -> None:
+    """`--time-only K`: fit and sample the first K sets, print the device and the times
+    (the first call compiles); no records, no table (the GPU row of the table)."""
+    import jax
+
+    print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), jax "
+          f"{jax.__version__}, numpyro {_numpyro()}", flush=True)
+    for i in range(args.time_only):
+        rng = np.random.default_rng(1000 + i)
+        p = truth(rng)
+        data = curves(p, rng)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = fitting.fit(data, radius=R, contact_point="fit", progress=False)
+            t0 = time.perf_counter()
+            post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
+                                  warmup=args.warmup, predictive=False, warn=False)
+        print(f"set {i}: sample {time.perf_counter() - t0:.2f} s ({args.chains} chains x "
+              f"{args.draws} draws + {args.warmup} warm-up), divergences {post.divergences}, "
+              f"max R-hat {max(r['r_hat'] for r in post.rows):.4f}, min bulk ESS "
+              f"{min(r['ess_bulk'] for r in post.rows):.0f}", flush=True)
+
+
+def run_real(files, args) -> list[str]:
+    rows = []
+    for f in files:
+        curve = fitting.load_curve(f)[0]  # the loaders detect the contact point
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t0 = time.perf_counter()
+            res = fitting.fit(curve, radius=args.radius, model=args.real_model, progress=False)
+            post = fitting.sample(res, draws=args.real_draws, chains=args.chains, seed=0,
+                                  warmup=args.warmup, predictive=False, warn=False)
+            dt = time.perf_counter() - t0
+        name = pathlib.Path(f).name
+        rows.append(f"\n**{name}** ({args.real_model} model, standard rheology, radius "
+                    f"{args.radius:g} m;"
+                    f" {args.chains} x {args.real_draws} draws, {post.divergences} "
+                    f"divergences; fit + sampling {dt:.0f} s; "
+                    f"reduced chi2 of the fit {res.reduced_chi2:.4g})\n")
+        rows.append("| parameter | fit ± linearised error | fit status | posterior mean ± sd "
+                    "| 5-95 % | R-hat | ESS bulk | identifiability (posterior) |")
+        rows.append("|---|---|---|---|---|---|---|---|")
+        for r in post.rows:
+            fit_txt = (f"{r['fit_value']:.4g} ± {r['fit_stderr']:.2g}"
+                       if r["fit_status"] == "ok" and math.isfinite(r["fit_stderr"])
+                       else f"{r['fit_value']:.4g}")
+            rows.append(f"| {r['name']} [{r['unit']}] | {fit_txt} | {r['fit_status']} | "
+                        f"{r['mean']:.4g} ± {r['sd']:.2g} | {r['q05']:.4g} – {r['q95']:.4g} | "
+                        f"{r['r_hat']:.3f} | {r['ess_bulk']:.0f} | {r['identifiability']} |")
+        for w in post.warnings:
+            rows.append(f"\nwarning: {w}")
+    return rows
+
+
+def table(recs, args, real_rows, command) -> list[str]:
+    lines = ["# Posterior calibration (`fitting.sample`, NUTS)", "",
+             f"Measured {machine()}; numpyro {_numpyro()}. Command:", "",
+             f"    {command}", "",
+             f"{len(recs)} synthetic parameter sets (relaxed model, standard rheology, contact "
+             f"offset fitted; 3 retract curves x {N} samples, noise {NOISE:.0%} of the force "
+             f"range; see the script's docstring), {args.chains} chains x {args.draws} draws "
+             f"after {args.warmup} warm-up each. Coverage: the fraction of sets whose 90 % "
+             "credible interval (5-95 %) contains the truth (acceptance 80-97 %; with "
+             f"{len(recs)} sets its binomial standard error at 90 % is "
+             f"{100 * math.sqrt(0.09 / max(len(recs), 1)):.1f} points).", "",
+             "| parameter | coverage of the 90 % interval | max R-hat | min bulk ESS | "
+             "min tail ESS | median posterior sd / linearised error |",
+             "|---|---|---|---|---|---|"]
+    noise = [n for n in recs[0]["params"] if n not in NAMES]
+    for n in NAMES + tuple(noise):
+        ps = [r["params"][n] for r in recs]
+        cov = (f"{sum(p['covered'] for p in ps)}/{len(ps)} = "
+               f"{100 * np.mean([p['covered'] for p in ps]):.0f} %" if n in NAMES
+               else "(sampled; no single truth: the fit's noise estimate times it)")
+        ratio = [p["sd"] / p["fit_stderr"] for p in ps
+                 if "fit_stderr" in p and p["fit_stderr"] and math.isfinite(p["fit_stderr"])]
+        lines.append(f"| {n} | {cov} | {max(p['r_hat'] for p in ps):.4f} | "
+                     f"{min(p['ess_bulk'] for p in ps):.0f} | "
+                     f"{min(p['ess_tail'] for p in ps):.0f} | "
+                     f"{np.median(ratio):.2f} |" if ratio else
+                     f"| {n} | {cov} | {max(p['r_hat'] for p in ps):.4f} | "
+                     f"{min(p['ess_bulk'] for p in ps):.0f} | "
+                     f"{min(p['ess_tail'] for p in ps):.0f} | |")
+    lines += ["", "The noise scale is sampled per curve (`noise_scale_1..3`). An earlier run of "
+              "this benchmark with one noise scale for all curves of a set (commit 5fc3f20, "
+              "first 25 sets, the same settings) covered the truth in 20, 23, 17, 23 and 20 "
+              "of 25 sets (G0, G1, eta1, work_of_adhesion, contact_offset): eta1 at 68 %. The "
+              "fit's noise estimate of a curve of 40 samples is off by tens of per cent, "
+              "differently for each curve; one common scale cannot correct the weights "
+              "between the curves."]
+    good = [r for r in recs if all(p["r_hat"] <= 1.01 and p["ess_bulk"] >= 400
+                                   for p in r["params"].values())]
+    others = ", ".join(str(r["curve"]) for r in recs if r not in good) or "none"
+    lines += ["", f"Sets whose every parameter has R-hat <= 1.01 and bulk ESS >= 400: "
+              f"{len(good)}/{len(recs)} (the others: sets {others}; "
+              "the sampler warns about them). Coverage over those sets alone: "
+              + ", ".join(f"{n} {100 * np.mean([r['params'][n]['covered'] for r in good]):.0f} %"
+                          for n in NAMES) + "." if good else ""]
+    ts = np.array([r["time_sample"] for r in recs])
+    div = sum(r["divergences"] for r in recs)
+    lines += ["", f"Divergent transitions: {div} in {len(recs)} x {args.chains} x {args.draws} "
+              "draws.", "",
+              f"Time per curve, `fitting.sample` ({args.chains} chains x {args.draws} draws + "
+              f"{args.warmup} warm-up, vectorised over the chains, wall clock on this shared "
+              f"CPU): median {np.median(ts[1:] if len(ts) > 1 else ts):.1f} s "
+              f"(range {np.min(ts[1:] if len(ts) > 1 else ts):.1f}-"
+              f"{np.max(ts[1:] if len(ts) > 1 else ts):.1f} s) after the first curve, "
+              f"whose {ts[0]:.1f} s include the compilation (one compilation serves every "
+              "curve of the same shape). The fit before it: median "
+              f"{np.median([r['time_fit'] for r in recs]):.1f} s."]
+    if real_rows:
+        lines += ["", "## Shipped real curves: posterior against the linearised errors"]
+        lines += real_rows
+    return lines
+
+
+def _numpyro() -> str:
+    import numpyro
+
+    return numpyro.__version__
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--curves", type=int, default=50)
+    ap.add_argument("--draws", type=int, default=1000)
+    ap.add_argument("--chains", type=int, default=4)
+    ap.add_argument("--warmup", type=int, default=500)
+    ap.add_argument("--real", nargs="*", default=[])
+    ap.add_argument("--real-draws", type=int, default=500)
+    ap.add_argument("--radius", type=float, default=10e-6)
+    ap.add_argument("--real-model", choices=("relaxed", "history"), default="relaxed")
+    ap.add_argument("--records", default="benchmarks/results/posterior_records.jsonl")
+    ap.add_argument("--out", default="benchmarks/results/posterior.md")
+    ap.add_argument("--no-table", action="store_true")
+    ap.add_argument("--time-only", type=int, default=0, metavar="K")
+    args = ap.parse_args(argv)
+    if args.time_only:
+        run_timing(args)
+        return 0
+    command = "python benchmarks/bench_posterior.py " + " ".join(sys.argv[1:] if argv is None
+                                                                  else argv)
+    recs = run_synthetic(args)
+    real_rows = run_real(args.real, args) if args.real else []
+    if not args.no_table and recs:
+        write_table(args.out, table(recs, args, real_rows, command))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

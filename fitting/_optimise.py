@@ -504,12 +504,6 @@ def _improved(chi2, before: float) -> bool:
     return _best_loss(chi2) < before * (1.0 - 1e-7)
 
 
-def _best(sol: Solution) -> int:
-    """The lane of the smallest finite χ² of a (host) solution."""
-    chi2 = np.asarray(sol.chi2, dtype=float)
-    return int(np.argmin(np.where(np.isfinite(chi2), chi2, np.inf)))
-
-
 def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: int,
                   seed: int, max_steps: int, show=None) -> list[Solution]:
     """The local rounds of each problem after its global search (one home for :func:`fit`

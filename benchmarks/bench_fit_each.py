@@ -8,7 +8,8 @@ rounds), R = 12 µm. Timed: `fit_each` cold (compilation included) and warm (med
 `--repeats` calls), for each `--chunks` value, with the warm time split into its stages
 (`FitEachResult.timings`: prepare, optimise, finish; ms a curve); the loop of `fit` over
 the same curves (its compilation is shared by all curves after the first: equal shapes;
-left out with `--no-loop`). Reported: curves/s, the ratio to the loop, and the largest
+left out with `--no-loop`). Reported: curves/s, the Levenberg–Marquardt steps a curve
+(the cost, independent of the machine's load), the ratio to the loop, and the largest
 relative difference of the fitted values between the two (the same optimum is expected),
 and the curves whose χ² is at most the loop's.
 
@@ -84,8 +85,9 @@ def main(argv=None):
         t_loop = time.perf_counter() - t0
         ref = np.array([r.values for r in loop])
         chi_ref = np.array([r.chi2 for r in loop])
+        steps = float(np.mean([np.sum(r.start_steps) for r in loop]))
         rows.append(f"| loop of `fit` | - | {t_cold:.1f} | {t_loop:.1f} | "
-                    f"{args.curves / t_loop:.2f} | | | | 1 | - | - |")
+                    f"{args.curves / t_loop:.2f} | | | | {steps:.0f} | 1 | - | - |")
         print(rows[-1], flush=True)
     for chunk in (int(c) for c in args.chunks.split(",")):
         t0 = time.perf_counter()
@@ -101,6 +103,7 @@ def main(argv=None):
         ms = {k: 1e3 * statistics.median(t[k] for t in stages) / args.curves
               for k in ("prepare", "optimise", "finish")}
         chi = np.array([r.chi2 for r in res.results])
+        steps = float(np.mean([np.sum(r.start_steps) for r in res.results]))
         if ref is not None:
             diff = f"{float(np.max(np.abs(res.values() / ref - 1))):.1e}"
             lower = f"{int(np.sum(chi <= chi_ref * (1 + 1e-9)))}/{args.curves}"
@@ -109,7 +112,7 @@ def main(argv=None):
             diff = lower = ratio = "-"
         rows.append(f"| `fit_each` | {chunk} | {cold:.1f} | {w:.2f} | {args.curves / w:.2f} | "
                     f"{ms['prepare']:.1f} | {ms['optimise']:.1f} | {ms['finish']:.1f} | "
-                    f"{ratio} | {diff} | {lower} |")
+                    f"{steps:.0f} | {ratio} | {diff} | {lower} |")
         print(rows[-1], flush=True)
         print(f"  chi2 sum {float(np.sum(chi)):.12g}", flush=True)
     head = [
@@ -122,14 +125,16 @@ def main(argv=None):
         "",
         "Times in s. *cold*: the first call (compilation included); *warm*: median of the "
         "repeats; *prepare*, *optimise*, *finish*: the warm stages in ms a curve; ratio: the "
-        "loop's warm time over the warm `fit_each` time; *max rel. diff.*: largest relative "
+        "loop's warm time over the warm `fit_each` time; *LM steps*: Levenberg–Marquardt "
+        "steps a curve, all starts and rounds (each one Jacobian: the cost, whatever the "
+        "machine's load); *max rel. diff.*: largest relative "
         "difference of a fitted value from the loop's; *χ² ≤ loop*: curves whose χ² is at "
         "most the loop's (a chunk runs its local rounds while any of its curves improves, so "
         "a curve may get more rounds than alone).",
         "",
         "| method | chunk | cold [s] | warm [s] | curves/s (warm) | prepare [ms] | "
-        "optimise [ms] | finish [ms] | ratio | max rel. diff. | χ² ≤ loop |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "optimise [ms] | finish [ms] | LM steps | ratio | max rel. diff. | χ² ≤ loop |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     if args.quick:
         print("\n".join(head + rows))

@@ -27,7 +27,9 @@ from ._io_afm import FailedCurve as FailedCurve
 from ._io_afm import load_afm as load_afm
 from ._io_csv import load_csv as load_csv
 from ._least_squares import LBFGS as LBFGS
+from ._least_squares import RESULTS as RESULTS
 from ._least_squares import LevenbergMarquardt as LevenbergMarquardt
+from ._least_squares import Solution as Solution
 from ._load import load_curve as load_curve
 from ._load import supported_formats as supported_formats
 from ._objective import effective_force as effective_force

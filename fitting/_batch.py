@@ -42,13 +42,12 @@ from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._io_afm import FailedCurve
+from ._least_squares import Solution
 from ._optimise import (
     DEFAULT_LOCAL_ROUNDS,
-    _best_loss,
     _compile_in_background,
     _finish,
-    _improved,
-    _merge,
+    _local_search,
     _model_at,
     _options,
     _problem,
@@ -58,7 +57,6 @@ from ._prepare import stack_batches
 from ._quality import warn_summary
 from ._result import FitResult
 from ._spec import parameter_info, rheology_name
-from ._start import LocalRounds, local_starts
 
 __all__ = ["fit_each", "FitEachResult"]
 
@@ -320,20 +318,16 @@ def fit_each(
             solve = dict(spec=spec, params=params, datas=datas, n_z=n_z, workers=lanes,
                          rtol=float(rtol), max_steps=int(max_steps), optimiser=optimiser,
                          devices=devices)
-            outs = _run_chunk([problems[i].zs for i in fill], **solve)
-            rounds = [LocalRounds() for _ in fill]
-            for k in range(opts["local_rounds"]):  # as in `fit`, for each curve
-                if all(r.done for r in rounds):
-                    break
-                before = [_best_loss(o[1]) for o in outs]
-                new = _run_chunk([local_starts(problems[i].param, o[0], o[1], n_z,
-                                               seed=seed + 1 + k, widen=r.widen)
-                                  for i, o, r in zip(fill, outs, rounds, strict=True)],
-                                 **solve)
-                for j, r in enumerate(rounds):  # a curve whose rounds are done keeps its
-                    if not r.done:              # end points (the same as fit alone)
-                        outs[j] = _merge(outs[j], new[j])
-                        r.update(_improved(outs[j][1], before[j]))
+
+            def run(starts, limits, solve=solve):
+                return _run_chunk(starts, limits=np.concatenate(limits), **solve)
+
+            outs = run([problems[i].zs for i in fill],
+                       [np.full(n_z, int(max_steps), dtype=np.int32)] * len(fill))
+            # as in `fit`, for each curve (a curve whose rounds are done is not run)
+            outs = _local_search([problems[i].param for i in fill], outs, run, n=n_z,
+                                 local_rounds=opts["local_rounds"], seed=seed,
+                                 max_steps=int(max_steps))
             model_at.join()
             timings["optimise"] += time.perf_counter() - t0
             t0 = time.perf_counter()
@@ -365,13 +359,12 @@ def fit_each(
         rheology=rheology_name(spec) if spec is not None else rheology, timings=timings)
 
 
-def _run_chunk(z0s, *, spec, params, datas, n_z, optimiser, **kw):
-    """`(z, chi2, ok, steps[, r, J])` of the `n_z` starts of each problem of a chunk."""
+def _run_chunk(z0s, *, spec, params, datas, n_z, optimiser, **kw) -> list[Solution]:
+    """The host :class:`Solution` of the `n_z` starts of each problem of a chunk."""
     out = jax.device_get(solve_batch(spec, params, datas, np.concatenate(z0s),
                                      optimiser=optimiser, keep_jacobian=optimiser == "lm",
                                      **kw))
-    return [tuple(np.asarray(x)[j * n_z:(j + 1) * n_z] for x in out)
-            for j in range(len(z0s))]
+    return [out.take(np.arange(j * n_z, (j + 1) * n_z)) for j in range(len(z0s))]
 
 
 def _stack(trees, repeat: int):

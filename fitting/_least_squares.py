@@ -8,7 +8,12 @@ drivers below run `step` in a `lax.while_loop` until `terminate` says so:
   axis inside the loop, so the linear algebra stays unbatched);
 * :func:`run_pool`: many independent problems on `workers` lanes; a lane whose problem
   has stopped takes the next one from the queue inside the same loop, so the cost is the
-  sum of the steps rather than (problems × the largest step count).
+  sum of the steps rather than (problems × the largest step count). Each problem may have
+  its own step limit (`limits`; 0: not run, it costs one lane-step).
+
+Both return a :class:`Solution`: per problem (lane) the end point, $\chi^2$, the steps and
+a :class:`RESULTS` code (converged, step limit, stagnated, non-finite start), as
+optimistix returns one.
 
 :class:`LevenbergMarquardt` (default of :func:`fitting.fit`): Marquardt scaling,
 multiplicative damping and a step extension, each step one exact forward-mode Jacobian
@@ -35,8 +40,62 @@ import optax.tree_utils as otu
 
 from ._objective import jacobian_fn
 
-__all__ = ["AbstractLeastSquaresSolver", "LevenbergMarquardt", "LBFGS", "run_starts",
-           "run_pool"]
+__all__ = ["AbstractLeastSquaresSolver", "LevenbergMarquardt", "LBFGS", "RESULTS", "Solution",
+           "run_starts", "run_pool"]
+
+
+class RESULTS:
+    r"""Codes of how a solver's run ended, one `int32` per lane (as `optimistix.RESULTS`).
+
+    `successful` (0): converged (the tolerance met); `max_steps_reached` (1): stopped at the
+    step limit before converging; `stagnated` (2): no step lowers $\chi^2$ any more without
+    meeting the tolerance (Levenberg–Marquardt: the damping grew past $10^{10}$; L-BFGS: a
+    line search without decrease); `nonfinite` (3): the residuals at the start are not
+    finite (the run did not move).
+    """
+
+    successful = 0
+    max_steps_reached = 1
+    stagnated = 2
+    nonfinite = 3
+    messages = ("converged", "stopped at the step limit", "stagnated (no step lowers chi2)",
+                "non-finite residuals at the start")
+
+    @classmethod
+    def describe(cls, code) -> str:
+        """The message of one code."""
+        return cls.messages[int(code)]
+
+
+class Solution(eqx.Module):
+    r"""The end of one run per lane (leading axis: problems or starts).
+
+    **Fields:** `z` (free vectors, `(n, k)`), `chi2` ($\sum r^2$, `(n,)`), `result`
+    (:class:`RESULTS` codes, `(n,)`), `steps` (iterations, the first evaluation counted,
+    `(n,)`), `r`, `J` (residuals `(n, m)` and their Jacobian w.r.t. `z`, `(n, m, k)`, at
+    the end points; `None` unless asked for and the solver carries them).
+    """
+
+    z: jax.Array
+    chi2: jax.Array
+    result: jax.Array
+    steps: jax.Array
+    r: jax.Array | None = None
+    J: jax.Array | None = None
+
+    @property
+    def converged(self):
+        """`result == RESULTS.successful`, per lane."""
+        return self.result == RESULTS.successful
+
+    def take(self, index) -> Solution:
+        """The lanes `index` (numpy or JAX indexing of the leading axis)."""
+        return jax.tree.map(lambda x: x[index], self)
+
+    def concat(self, other: Solution) -> Solution:
+        """This solution's lanes followed by `other`'s (host arrays)."""
+        return jax.tree.map(lambda a, b: np.concatenate([np.asarray(a), np.asarray(b)]),
+                            self, other)
 
 
 class AbstractLeastSquaresSolver(eqx.Module):
@@ -75,8 +134,10 @@ class _LMState(eqx.Module):
     lam: jax.Array
     mu: jax.Array
     steps: jax.Array
+    limit: jax.Array
     done: jax.Array
     ok: jax.Array
+    result: jax.Array
 
 
 class LevenbergMarquardt(AbstractLeastSquaresSolver):
@@ -92,8 +153,11 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
 
     **Fields:** `rtol` (converged when an accepted step changes $z$ by less than
     `atol + rtol·max|z|` or $\chi^2$ by less than `rtol·χ²`), `atol`, `max_steps`
-    (stops unconverged after that many steps, or when $\lambda > 10^{10}$). The state's
-    `steps` counts the first evaluation at the start as a step.
+    (stops unconverged after that many steps: :attr:`RESULTS.max_steps_reached`; or when
+    $\lambda > 10^{10}$: :attr:`RESULTS.stagnated`; at once when the start's residuals are
+    not finite: :attr:`RESULTS.nonfinite`). The state's `steps` counts the first
+    evaluation at the start as a step; its `limit` (default `max_steps`) may be set per
+    lane by a driver.
     """
 
     rtol: float = eqx.field(static=True, default=1e-8)
@@ -111,9 +175,11 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         r = jnp.zeros(r0.shape, r0.dtype)
         J = jnp.zeros(r0.shape + z0.shape, r0.dtype)
         one = jnp.asarray(1.0, r0.dtype)
+        limit = jnp.asarray(self.max_steps)
         return _LMState(z=z0, r=r, J=J, chi2=jnp.asarray(jnp.inf, r0.dtype),
-                        lam=5e-3 * one, mu=one, steps=jnp.asarray(0),
-                        done=jnp.asarray(self.max_steps <= 0), ok=jnp.asarray(False))
+                        lam=5e-3 * one, mu=one, steps=jnp.asarray(0), limit=limit,
+                        done=limit <= 0, ok=jnp.asarray(False),
+                        result=jnp.asarray(RESULTS.max_steps_reached, jnp.int32))
 
     def step(self, fn, s, ctx):
         A = s.J.T @ s.J
@@ -136,14 +202,21 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
                        jnp.where(ok & (gain > 0.75), s.mu, 1.0))
         mu = jnp.where(jnp.isfinite(s.chi2), mu, s.mu)  # the evaluation step changes nothing
         steps = s.steps + 1
+        # the start itself not finite: delta stays 0, no later step can move
+        nonfinite = ~jnp.isfinite(s.chi2) & ~jnp.isfinite(chi2_new)
+        stagnated = lam > 1e10
+        limited = steps > s.limit
+        result = jnp.select([converged, nonfinite, stagnated, limited],
+                            [RESULTS.successful, RESULTS.nonfinite, RESULTS.stagnated,
+                             RESULTS.max_steps_reached], s.result).astype(jnp.int32)
         return _LMState(
             z=jnp.where(ok, s.z + delta, s.z),
             r=jnp.where(ok, r_new, s.r),
             J=jnp.where(ok, J_new, s.J),
             chi2=jnp.where(ok, chi2_new, s.chi2),
-            lam=lam, mu=mu, steps=steps,
-            done=converged | (lam > 1e10) | (steps > self.max_steps),
-            ok=converged,
+            lam=lam, mu=mu, steps=steps, limit=s.limit,
+            done=converged | nonfinite | stagnated | limited,
+            ok=converged, result=result,
         )
 
     def chi2(self, state):
@@ -190,8 +263,10 @@ class _LBFGSState(eqx.Module):
     grad: jax.Array
     steps: jax.Array
     evaluations: jax.Array
+    limit: jax.Array
     done: jax.Array
     ok: jax.Array
+    result: jax.Array
 
 
 class LBFGS(AbstractLeastSquaresSolver):
@@ -215,9 +290,13 @@ class LBFGS(AbstractLeastSquaresSolver):
 
     def init(self, fn, z0, ctx):
         v0, g0 = jax.value_and_grad(lambda z, c: _half_ssq(fn, z, c))(z0, ctx)
+        limit = jnp.asarray(self.max_steps)
+        nonfinite = ~jnp.isfinite(v0)
         return _LBFGSState(z=z0, opt_state=self._opt().init(z0), value=v0, grad=g0,
-                           steps=jnp.asarray(0), evaluations=jnp.asarray(1),
-                           done=jnp.asarray(self.max_steps <= 0), ok=jnp.asarray(False))
+                           steps=jnp.asarray(0), evaluations=jnp.asarray(1), limit=limit,
+                           done=(limit <= 0) | nonfinite, ok=jnp.asarray(False),
+                           result=jnp.where(nonfinite, RESULTS.nonfinite,
+                                            RESULTS.max_steps_reached).astype(jnp.int32))
 
     def step(self, fn, s, ctx):
         # value and gradient at s.z are carried in the state (not re-evaluated: optax's
@@ -237,12 +316,16 @@ class LBFGS(AbstractLeastSquaresSolver):
         grad_small = better & (jnp.max(jnp.abs(g_new)) <= self.gtol * scale)
         converged = flat | grad_small
         steps = s.steps + 1
+        limited = steps >= s.limit
+        result = jnp.select([converged, ~better, limited],
+                            [RESULTS.successful, RESULTS.stagnated, RESULTS.max_steps_reached],
+                            s.result).astype(jnp.int32)
         return _LBFGSState(
             z=jnp.where(better, z_new, s.z), opt_state=opt_state,
             value=jnp.where(better, v_new, s.value),
             grad=jnp.where(better, g_new, s.grad), steps=steps,
-            evaluations=s.evaluations + n_eval,
-            done=converged | ~better | (steps >= self.max_steps), ok=converged,
+            evaluations=s.evaluations + n_eval, limit=s.limit,
+            done=converged | ~better | limited, ok=converged, result=result,
         )
 
     def chi2(self, state):
@@ -260,11 +343,20 @@ def _loop(solver, fn, state, ctx):
                               lambda s: solver.step(fn, s, ctx), state)
 
 
-def run_starts(solver: AbstractLeastSquaresSolver, fn, z0s, ctx):
-    """Final states of every start (rows of `z0s`), one vmapped loop, shared `ctx`."""
+def _solution(solver, s, keep_jacobian: bool) -> Solution:
+    rj = solver.last_jacobian(s) if keep_jacobian else None
+    r, J = rj if rj is not None else (None, None)
+    return Solution(z=s.z, chi2=solver.chi2(s), result=s.result, steps=s.steps, r=r, J=J)
+
+
+def run_starts(solver: AbstractLeastSquaresSolver, fn, z0s, ctx, *,
+               keep_jacobian: bool = False) -> Solution:
+    """The :class:`Solution` of every start (rows of `z0s`), one vmapped loop, shared
+    `ctx`."""
 
     def one(z0):
-        return _loop(solver, fn, solver.init(fn, z0, ctx), ctx)
+        return _solution(solver, _loop(solver, fn, solver.init(fn, z0, ctx), ctx),
+                         keep_jacobian)
 
     if z0s.shape[0] == 1:
         return jax.tree.map(lambda x: x[None], one(z0s[0]))
@@ -276,25 +368,31 @@ def _take(tree, i):
 
 
 def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
-             keep_jacobian: bool = False):
-    """`(z, chi2, ok, steps)` of `len(z0s)` problems solved on `workers` lanes, followed by
-    `(r, J)` of each final state when `keep_jacobian` and the solver carries them.
+             limits=None, keep_jacobian: bool = False) -> Solution:
+    r"""The :class:`Solution` of `len(z0s)` problems solved on `workers` lanes, with the
+    residuals and Jacobian of each final state when `keep_jacobian` and the solver
+    carries them.
 
-    `ctxs` has a leading problem axis. All initial states are evaluated first (one batched
-    call); then one loop iterates all lanes; a lane whose problem is done writes its result
-    and is refilled from the queue. The loop ends when every problem is written.
+    `ctxs` has a leading problem axis. `limits`: the step limit of each problem (default:
+    the solver's `max_steps`; 0: not run, its result reads `max_steps_reached` with
+    $\chi^2 = \infty$ for Levenberg–Marquardt). All initial states are made first (one
+    batched call); then one loop iterates all lanes; a lane whose problem is done writes
+    its result and is refilled from the queue. The loop ends when every problem is written.
     """
     n_tasks = z0s.shape[0]
     w = max(1, min(int(workers), n_tasks))
     states0 = jax.vmap(lambda z, c: solver.init(fn, z, c))(z0s, ctxs)
+    if limits is not None:
+        limits = jnp.broadcast_to(jnp.asarray(limits, states0.limit.dtype), (n_tasks,))
+        states0 = eqx.tree_at(lambda s: (s.limit, s.done), states0,
+                              (limits, states0.done | (limits <= 0)))
 
     def step(s, ctx):  # a finished lane stays as it is
         new = solver.step(fn, s, ctx)
         return jax.tree.map(lambda a, b: jnp.where(s.done, a, b), s, new)
 
     def result(s):
-        return (s.z, solver.chi2(s), s.ok, s.steps) + (
-            tuple(solver.last_jacobian(s) or ()) if keep_jacobian else ())
+        return _solution(solver, s, keep_jacobian)
 
     def body(c):
         work, tasks, out, queued, written = c

@@ -60,7 +60,7 @@ from jaxcontact._validate import plain
 
 from ._caller import warn_at_caller
 from ._curve import Curve
-from ._least_squares import LBFGS, LevenbergMarquardt, run_pool, run_starts
+from ._least_squares import LBFGS, RESULTS, LevenbergMarquardt, Solution, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
 from ._parameters import Parameterisation, make_parameterisation
 from ._prepare import (
@@ -130,8 +130,9 @@ _OPTIONS = ("rtol", "atol", "gtol", "max_steps", "optimiser", "workers")
 @functools.partial(jax.jit, static_argnames=_OPTIONS)
 def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
           rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8, max_steps: int = 200,
-          optimiser: str = "lm", workers: int | None = None):
-    r"""Minimise ½ Σ r² from every row of `z0s`; returns `(z, chi2, ok, steps)` per start.
+          optimiser: str = "lm", workers: int | None = None) -> Solution:
+    r"""Minimise ½ Σ r² from every row of `z0s`; a :class:`fitting.Solution` per start
+    (`z`, `chi2`, `result` codes of :class:`fitting.RESULTS`, `steps`, `converged`).
 
     **Arguments:** `spec`, `param`, `data` (the problem: residuals
     `residuals(param.natural(z), data, spec)`), `z0s` (starts, shape `(starts, n_free)`),
@@ -144,8 +145,7 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
     solver = _solver(optimiser, rtol, atol, gtol, max_steps)
     fn = _fn(spec)
     if workers is None:
-        s = run_starts(solver, fn, z0s, (param, data))
-        return s.z, jax.vmap(solver.chi2)(s), s.ok, s.steps
+        return run_starts(solver, fn, z0s, (param, data))
     n = z0s.shape[0]
     ctxs = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), (param, data))
     return run_pool(solver, fn, z0s, ctxs, workers)
@@ -154,14 +154,15 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
 def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0s, *,
                 workers: int = 8, rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8,
                 max_steps: int = 200, optimiser: str = "lm", devices=None,
-                keep_jacobian: bool = False):
+                keep_jacobian: bool = False, limits=None) -> Solution:
     """Independent problems in one compiled call, scheduled as a pool of `workers` lanes.
 
     `params`, `datas` and `z0s` carry a leading problem axis (stack equally shaped problems
     with ``jax.tree.map(lambda *x: jnp.stack(x), *problems)``; the free parameters must be
-    the same); one start per problem. Returns `(z, chi2, ok, steps)` per problem, and with
-    `keep_jacobian` also the residuals `r` and their Jacobian `J` with respect to `z` at the
-    end point of each (Levenberg–Marquardt only).
+    the same); one start per problem. Returns a :class:`fitting.Solution` per problem
+    (`z`, `chi2`, `result`, `steps`; with `keep_jacobian` also the residuals `r` and their
+    Jacobian `J` with respect to `z` at the end point of each, Levenberg–Marquardt only).
+    `limits`: a step limit per problem (default `max_steps` for all; 0: not run).
 
     `devices`: the devices to spread the problems over (default: every local device of
     JAX's default backend). With more than one, the problems are split into equal shares
@@ -176,9 +177,11 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     opts = dict(workers=int(workers), rtol=float(rtol), atol=float(atol), gtol=float(gtol),
                 max_steps=int(max_steps), optimiser=optimiser,
                 keep_jacobian=bool(keep_jacobian))
+    limits = np.broadcast_to(np.asarray(max_steps if limits is None else limits,
+                                        dtype=np.int32), (n,))
     if n_dev == 1:
         with jax.default_device(devices[0]):
-            return _solve_batch(spec, params, datas, z0s, **opts)
+            return _solve_batch(spec, params, datas, z0s, limits, **opts)
     share = -(-n // n_dev)
     fill = np.minimum(np.arange(n_dev * share), n - 1)
 
@@ -187,31 +190,34 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
         return x.reshape((n_dev, share) + x.shape[1:])
 
     run = _pmapped_pool(spec, tuple(devices[:n_dev]), tuple(sorted(opts.items())))
-    out = run(jax.tree.map(split, params), jax.tree.map(split, datas), split(z0s))
-    return tuple(x.reshape((n_dev * share,) + x.shape[2:])[:n] for x in out)
+    out = run(jax.tree.map(split, params), jax.tree.map(split, datas), split(z0s),
+              split(limits))
+    return jax.tree.map(lambda x: x.reshape((n_dev * share,) + x.shape[2:])[:n], out)
 
 
 @functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))
-def _solve_batch(spec, params, datas, z0s, *, workers, rtol, atol, gtol, max_steps,
+def _solve_batch(spec, params, datas, z0s, limits, *, workers, rtol, atol, gtol, max_steps,
                  optimiser, keep_jacobian):
     solver = _solver(optimiser, rtol, atol, gtol, max_steps)
-    return run_pool(solver, _fn(spec), z0s, (params, datas), workers,
+    return run_pool(solver, _fn(spec), z0s, (params, datas), workers, limits=limits,
                     keep_jacobian=keep_jacobian)
 
 
 @functools.lru_cache(maxsize=16)
 def _pmapped_pool(spec, devices, opts):
     # every device runs `_solve_batch` on its share
-    return jax.pmap(lambda p, d, z: _solve_batch(spec, p, d, z, **dict(opts)),
+    return jax.pmap(lambda p, d, z, lim: _solve_batch(spec, p, d, z, lim, **dict(opts)),
                     devices=list(devices))
 
 
 @functools.partial(jax.jit, static_argnames=("solver", "workers"))
-def _search(spec, param, data, z0s, solver, workers):
-    """All starts in one pool; `(z, chi2, ok, steps[, r, J])` of each (J w.r.t. z)."""
+def _search(spec, param, data, z0s, limits, solver, workers) -> Solution:
+    """All starts in one pool, each with its step limit; the :class:`Solution` of each
+    (with `r`, `J`; J w.r.t. z)."""
     n = z0s.shape[0]
     ctxs = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), (param, data))
-    return run_pool(solver, _fn(spec), z0s, ctxs, workers, keep_jacobian=True)
+    return run_pool(solver, _fn(spec), z0s, ctxs, workers, limits=limits,
+                    keep_jacobian=True)
 
 
 @jax.jit
@@ -498,10 +504,39 @@ def _improved(chi2, before: float) -> bool:
     return _best_loss(chi2) < before * (1.0 - 1e-7)
 
 
-def _merge(out, new):
-    """The outputs of two rounds of starts, one after the other."""
-    return tuple(np.concatenate([np.asarray(a), np.asarray(b)]) for a, b in
-                 zip(out, new, strict=True))
+def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: int,
+                  seed: int, max_steps: int, show=None) -> list[Solution]:
+    """The local rounds of each problem after its global search (one home for :func:`fit`
+    and :func:`fitting.fit_each`).
+
+    `params`: the problems' parameterisations; `outs`: their global searches (host
+    :class:`Solution`, one lane per start); `run(starts, limits)`: one compiled call of
+    the pool on `n` starts per problem with a step limit per start, returning a host
+    :class:`Solution` per problem. Each round gives every problem whose rounds are not
+    done `n` starts (:func:`fitting._start.local_starts`) with `max_steps` each; a problem
+    whose rounds are done gets limit 0 (not run: it costs one lane-step a start). Returns
+    the merged solutions.
+    """
+    outs = list(outs)
+    rounds = [LocalRounds() for _ in outs]
+    for k in range(local_rounds):
+        if all(r.done for r in rounds):
+            break
+        before = [_best_loss(o.chi2) for o in outs]
+        starts = [local_starts(param, o.z, o.chi2, n, seed=seed + 1 + k, widen=r.widen)
+                  for param, o, r in zip(params, outs, rounds, strict=True)]
+        limits = [np.full(n, 0 if r.done else max_steps, dtype=np.int32) for r in rounds]
+        new = run(starts, limits)
+        for j, r in enumerate(rounds):  # a problem whose rounds are done keeps its lanes
+            if r.done:
+                continue
+            widen = r.widen
+            outs[j] = outs[j].concat(new[j])
+            r.update(_improved(outs[j].chi2, before[j]))
+            if show is not None:
+                show(f"local round {k + 1} (width x{widen:g}): chi2 {before[j]:.8g} -> "
+                     f"{_best_loss(outs[j].chi2):.8g}")
+    return outs
 
 
 def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
@@ -517,50 +552,46 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
     # the forward model at the optimum (`_finish`) compiles while the search runs
     model_at = _compile_in_background(_model_at, pb.spec, pb.param,
                                       jnp.asarray(pb.param.internal_host(pb.zs[0])), pb.data)
-    solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8,
-                     int(opts["max_steps"]))
+    max_steps = int(opts["max_steps"])
+    solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8, max_steps)
 
-    def run(zs):
-        return jax.device_get(_search(pb.spec, pb.param, pb.data, jnp.asarray(zs), solver,
-                                      min(8, len(zs))))
+    def run(starts, limits):
+        return [jax.device_get(_search(pb.spec, pb.param, pb.data, jnp.asarray(zs),
+                                       jnp.asarray(lim), solver, min(8, len(zs))))
+                for zs, lim in zip(starts, limits, strict=True)]
 
-    out = run(pb.zs)
-    rounds = LocalRounds()
-    for k in range(opts["local_rounds"]):
-        best = _best_loss(out[1])
-        out = _merge(out, run(local_starts(pb.param, out[0], out[1], len(pb.zs),
-                                           seed=opts["seed"] + 1 + k, widen=rounds.widen)))
-        show(f"local round {k + 1} (width x{rounds.widen:g}): chi2 {best:.8g} -> "
-             f"{_best_loss(out[1]):.8g}")
-        rounds.update(_improved(out[1], best))
-        if rounds.done:
-            break
+    out = run([pb.zs], [np.full(len(pb.zs), max_steps, dtype=np.int32)])
+    out = _local_search([pb.param], out, run, n=len(pb.zs),
+                        local_rounds=opts["local_rounds"], seed=opts["seed"],
+                        max_steps=max_steps, show=show)[0]
     model_at.join()
     timings["optimise"] = time.perf_counter() - t0
     return _finish(pb, curves, opts["profile"], out, opts["optimiser"], show=show,
-                   warn=warn, timings=timings, t_start=t_start, max_steps=opts["max_steps"])
+                   warn=warn, timings=timings, t_start=t_start, max_steps=max_steps)
 
 
-def _finish(pb: _Problem, curves, profile, out, optimiser, *, show, warn, timings,
+def _finish(pb: _Problem, curves, profile, out: Solution, optimiser, *, show, warn, timings,
             t_start, max_steps=None) -> FitResult:
-    """The :class:`FitResult` of problem `pb` from the search's output `out` (`(z, chi2, ok,
-    steps[, r, J])` of every start, J with respect to z)."""
+    """The :class:`FitResult` of problem `pb` from the search's :class:`Solution` `out`
+    (every start; its `r`, `J` if kept, J with respect to z)."""
     spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
     t0 = time.perf_counter()
-    z_all, chi2_all, ok_all, steps_all = (np.asarray(x) for x in out[:4])
+    z_all, chi2_all, steps_all = (np.asarray(x) for x in (out.z, out.chi2, out.steps))
+    ok_all = np.asarray(out.converged)
     finite = np.isfinite(chi2_all)
     best = int(np.argmin(np.where(finite, chi2_all, np.inf)))
     z = z_all[best]
     u = param.internal_host(z)
     dudz = param.dinternal_dz(z)
-    if len(out) > 4 and np.all(np.abs(dudz) > 1e-8):
-        r, J = np.asarray(out[4][best]), np.asarray(out[5][best]) / dudz[None, :]
+    if out.J is not None and np.all(np.abs(dudz) > 1e-8):
+        r, J = np.asarray(out.r[best]), np.asarray(out.J[best]) / dudz[None, :]
     else:
         r, J = (np.asarray(x) for x in internal_jacobian(spec, param, jnp.asarray(u), data))
     u, J = _sort_arms(spec, param, u, J)
     order = np.argsort(np.where(finite, chi2_all, np.inf))
     show(f"search: chi2 of the best starts {', '.join(f'{chi2_all[i]:.6g}' for i in order[:4])}"
-         f"; converged {bool(ok_all[best])}, {int(steps_all[best])} steps")
+         f"; {RESULTS.describe(out.result[best])}, {int(steps_all[best])} steps "
+         f"({len(chi2_all)} starts, {int(np.sum(steps_all))} steps in all)")
     sol, model_force, fitted_force = jax.device_get(
         _model_at(spec, param, jnp.asarray(u), data))
     timings["optimise"] = timings.get("optimise", 0.0) + time.perf_counter() - t0

@@ -29,9 +29,8 @@ def _profile_solve(spec, param, data, references, z0, max_steps):
     (data, not a static field): the trace, and the compilation, serve every value.
     """
     def one(ref):
-        z, chi2, ok, steps = solve(spec, param.with_reference(ref), data, z0[None],
-                                   max_steps=max_steps)
-        return z[0], chi2[0], ok[0], steps[0]
+        sol = solve(spec, param.with_reference(ref), data, z0[None], max_steps=max_steps)
+        return sol.z[0], sol.chi2[0], sol.converged[0], sol.steps[0]
 
     return jax.vmap(one)(references)
 

@@ -1,0 +1,109 @@
+"""The least-squares drivers on closed-form problems (no contact model: cheap to compile):
+per-lane result codes, per-lane step limits, and the local rounds' continuation of a best
+end point stopped at the local step limit."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fitting import LBFGS, RESULTS, LevenbergMarquardt, Solution, _optimise
+from fitting._least_squares import run_pool, run_starts
+from fitting._parameters import make_parameterisation
+
+
+def rosenbrock(z, ctx):
+    # minimum 0 at z = (1, 1) (closed form)
+    return jnp.stack([10.0 * (z[1] - z[0] ** 2), 1.0 - z[0]]) * ctx
+
+
+def rosenbrock_floor(z, ctx):
+    # minimum 1 at z = (1, 1): a loss whose relative changes are not round-off
+    return jnp.concatenate([rosenbrock(z, ctx), jnp.ones(1)])
+
+
+def _pool(solver, z0s, limits=None, workers=2, fn=rosenbrock):
+    z0s = jnp.asarray(z0s, dtype=float)
+    ctxs = jnp.ones(len(z0s))
+    return jax.device_get(run_pool(solver, fn, z0s, ctxs, workers, limits=limits,
+                                   keep_jacobian=True))
+
+
+def test_result_code_per_lane():
+    # one pool, four lanes: converged, stopped by its own step limit, a non-finite start,
+    # and a lane with limit 0 (not run)
+    lm = LevenbergMarquardt(max_steps=200)
+    z0s = [[-1.2, 1.0], [-1.2, 1.0], [np.nan, 1.0], [-1.2, 1.0]]
+    sol = _pool(lm, z0s, limits=np.array([200, 3, 200, 0]))
+    assert isinstance(sol, Solution)
+    assert sol.result.tolist() == [RESULTS.successful, RESULTS.max_steps_reached,
+                                   RESULTS.nonfinite, RESULTS.max_steps_reached]
+    assert sol.converged.tolist() == [True, False, False, False]
+    np.testing.assert_allclose(sol.z[0], [1.0, 1.0], atol=1e-6)
+    assert sol.chi2[0] < 1e-12
+    # the step limit: the evaluation at the start counts; stopped when steps > limit
+    assert sol.steps[1] == 4 and sol.chi2[1] > 1e-3
+    assert sol.steps[2] == 1 and not np.isfinite(sol.chi2[2])
+    assert sol.steps[3] == 0 and sol.chi2[3] == np.inf
+    # the Jacobian kept at the end point is the exact one (closed form)
+    x, y = sol.z[0]
+    np.testing.assert_allclose(sol.J[0], [[-20.0 * x, 10.0], [-1.0, 0.0]], rtol=1e-12)
+    assert RESULTS.describe(sol.result[1]) == "stopped at the step limit"
+
+
+def test_solver_step_limit_without_limits_argument_and_lbfgs_codes():
+    # the solver's own max_steps stops a lane (step limit), as before
+    sol = jax.device_get(run_starts(LevenbergMarquardt(max_steps=2), rosenbrock,
+                                    jnp.asarray([[-1.2, 1.0]]), 1.0))
+    assert sol.result.tolist() == [RESULTS.max_steps_reached] and sol.steps[0] == 3
+    lb = _pool(LBFGS(max_steps=500), [[-1.2, 1.0], [-1.2, 1.0], [np.nan, 0.0]],
+               limits=np.array([500, 2, 500]))
+    assert lb.result.tolist() == [RESULTS.successful, RESULTS.max_steps_reached,
+                                  RESULTS.nonfinite]
+    assert lb.r is None and lb.J is None  # L-BFGS carries no Jacobian
+    np.testing.assert_allclose(lb.z[0], [1.0, 1.0], atol=1e-4)
+
+
+def test_local_rounds_skip_problems_whose_rounds_are_done():
+    # two problems in one pool: the first's local round improves (its global search was
+    # stopped early), the second's does not (already at the closed-form minimum): the
+    # second's rounds end after the widest one, and from then on its starts get limit 0
+    # (not run) while the first's still run with max_steps
+    info = [("a", "1", "modulus"), ("b", "1", "modulus")]
+    param = make_parameterisation(info, {"a": 1.0, "b": 1.0},
+                                  bounds={"a": (1e-3, 1e3), "b": (1e-3, 1e3)})
+    lm = LevenbergMarquardt(max_steps=200)
+    n = 4
+    calls = []
+
+    def run(starts, limits):
+        calls.append([np.asarray(lim).tolist() for lim in limits])
+        return [_pool(lm, zs, limits=lim, fn=rosenbrock_floor)
+                for zs, lim in zip(starts, limits, strict=True)]
+
+    z0 = np.array([[-1.2, 1.0], [-1.0, 2.0], [2.0, 2.0], [0.0, -1.0]])
+    first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
+    assert not np.any(first[0].converged) and np.all(first[1].converged)
+    out = _optimise._local_search([param, param], first, run, n=n, local_rounds=4, seed=0,
+                                  max_steps=200)
+    # the second problem: widths 1, 2.5, 6.25 without a decrease, then done
+    assert [c[1] for c in calls[1:]] == [[200] * n] * 3 + [[0] * n]
+    assert calls[4][0] == [200] * n
+    assert len(out[1].chi2) == 4 * n and len(out[0].chi2) == 5 * n
+    for o in out:
+        best = int(np.argmin(o.chi2))
+        assert o.result[best] == RESULTS.successful
+        assert o.chi2[best] == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(o.z[best], [1.0, 1.0], atol=1e-6)
+
+
+@pytest.mark.parametrize("limit", [0, 1])
+def test_pool_with_fewer_lanes_than_tasks_writes_every_task(limit):
+    # six tasks on two lanes, mixed limits: every task written once, in its own slot
+    z0s = [[-1.2, 1.0], [0.5, 0.5], [-1.2, 1.0], [2.0, 3.0], [0.0, 0.0], [1.0, 1.0]]
+    limits = np.array([200, limit, 200, 200, limit, 200])
+    sol = _pool(LevenbergMarquardt(), z0s, limits=limits)
+    run = limits > 0
+    assert np.all(sol.converged[limits == 200])
+    assert np.all(sol.steps[~run] == 0) and np.all(sol.steps[run] >= 1)
+    np.testing.assert_allclose(sol.z[limits == 200], 1.0, atol=1e-6)

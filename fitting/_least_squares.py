@@ -11,7 +11,8 @@ drivers below run `step` in a `lax.while_loop` until `terminate` says so:
   sum of the steps rather than (problems × the largest step count).
 
 :class:`LevenbergMarquardt` (default of :func:`fitting.fit`): Marquardt scaling,
-multiplicative damping and a step extension, each step one exact forward-mode Jacobian
+multiplicative damping, a step extension, geodesic acceleration and a bounded step, each
+step one exact forward-mode Jacobian (and one residual evaluation more)
 (:func:`fitting._objective.jacobian_fn`). It is not `optimistix.LevenbergMarquardt`
 because that one compiled about 4× slower on this objective.
 

@@ -359,3 +359,34 @@ def test_cli_bad_options(tmp_path, capsys, extra, needle):
                                   "--quiet"])
     assert code != 0 and needle in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_levenberg_marquardt_follows_the_valley_of_an_almost_elastic_arm():
+    # the valley that made nested prony:2 fits of real curves run to their step limit: an
+    # arm whose relaxation time is far beyond the curve (here 20x) acts as a spring beside
+    # G_inf, so the data fix G_inf + G_2 (and a slight slope) and the two moduli trade off
+    # along a narrow valley, curved in the log coordinates the fit uses. The relaxation
+    # modulus is linear in the moduli: the optimum is the truth exactly (noise-free data).
+    import jax.numpy as jnp
+
+    from fitting._least_squares import LevenbergMarquardt, run_starts
+
+    t = jnp.linspace(0.0, 1.0, 50)
+    decay = jnp.exp(-t / 20.0)
+    data = 1.0 + 3.0 * decay  # G_inf = 1, G_2 = 3 [units of the data]
+
+    def fn(z, ctx):  # z: log G_inf, log G_2; sigma = 1e-4
+        return (jnp.exp(z[0]) + jnp.exp(z[1]) * decay - data) / 1e-4
+
+    # starts at the two ends of the valley (the sum nearly right, the split wrong)
+    z0 = jnp.log(jnp.array([[3.9, 0.1], [0.05, 3.95]]))
+    # plain Levenberg-Marquardt (the default) crawls: 125 and 86 steps; with geodesic
+    # acceleration and a bounded step it converges within 60 (45 and 37)
+    s = run_starts(LevenbergMarquardt(max_steps=60, geodesic=True, max_step=4.0), fn, z0,
+                   None)
+    assert np.all(np.asarray(s.ok)), np.asarray(s.steps)
+    np.testing.assert_allclose(np.exp(np.asarray(s.z)), [[1.0, 3.0], [1.0, 3.0]], rtol=1e-7)
+    plain = run_starts(LevenbergMarquardt(max_steps=60), fn, z0, None)
+    assert not np.any(np.asarray(plain.ok))
+    plain = run_starts(LevenbergMarquardt(max_steps=200), fn, z0, None)
+    assert np.all(np.asarray(plain.ok)) and np.all(np.asarray(plain.steps) > 60)

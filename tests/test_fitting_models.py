@@ -384,9 +384,9 @@ def test_levenberg_marquardt_follows_the_valley_of_an_almost_elastic_arm():
     # acceleration and a bounded step it converges within 60 (45 and 37)
     s = run_starts(LevenbergMarquardt(max_steps=60, geodesic=True, max_step=4.0), fn, z0,
                    None)
-    assert np.all(np.asarray(s.ok)), np.asarray(s.steps)
+    assert np.all(np.asarray(s.converged)), np.asarray(s.steps)
     np.testing.assert_allclose(np.exp(np.asarray(s.z)), [[1.0, 3.0], [1.0, 3.0]], rtol=1e-7)
     plain = run_starts(LevenbergMarquardt(max_steps=60), fn, z0, None)
-    assert not np.any(np.asarray(plain.ok))
+    assert not np.any(np.asarray(plain.converged))
     plain = run_starts(LevenbergMarquardt(max_steps=200), fn, z0, None)
-    assert np.all(np.asarray(plain.ok)) and np.all(np.asarray(plain.steps) > 60)
+    assert np.all(np.asarray(plain.converged)) and np.all(np.asarray(plain.steps) > 60)

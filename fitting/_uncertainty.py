@@ -35,6 +35,7 @@ detaches and the contact front never recedes (the data then bound it only from b
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -208,12 +209,41 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
     a parameter it depends on is not determined or at a bound), ``status`` ("ok" or "not
     determined"), ``definition``.
     """
+    from ._spec import parameter_info
+
+    names = [n for n, _, _ in parameter_info(spec)]
+    rows, fn = _derived_fn(spec)
+    values, grad = fn(np.asarray(p, dtype=float))
+    values, grad = np.asarray(values), np.asarray(grad)
+    cov = np.asarray(covariance, dtype=float)
+    out = []
+    for i, (name, unit, definition) in enumerate(rows):
+        g = grad[i]
+        used = [j for j in range(len(names)) if g[j] != 0 and status[j] != "fixed"]
+        ok = all(status[j] == "ok" for j in used)
+        if ok and used:
+            c = cov[np.ix_(used, used)]
+            var = float(g[used] @ c @ g[used]) if np.all(np.isfinite(c)) else math.nan
+            se = math.sqrt(var) if var >= 0 else math.nan
+        else:
+            se = 0.0 if ok else math.nan  # every parameter it depends on fixed: exact
+        out.append({"name": name, "unit": unit, "value": float(values[i]), "stderr": se,
+                    "status": "ok" if ok and math.isfinite(se) else "not determined",
+                    "definition": definition + (" (E = 2(1 + nu) G, nu = 0.5)"
+                                                if name.startswith("E") else "")})
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _derived_fn(spec):
+    """The rows of :func:`derived_quantities` for `spec` and a function of the parameter
+    vector returning their values and Jacobian, compiled once per model (eagerly, the
+    forward-mode Jacobian cost ~70 ms a curve of a force map)."""
     import jax
     import jax.numpy as jnp
 
-    from ._spec import build_rheology, parameter_info
+    from ._spec import build_rheology
 
-    names = [n for n, _, _ in parameter_info(spec)]
     if spec.rheology == "elastic":
         rows = [("E", "Pa", "3 G")]
 
@@ -237,23 +267,4 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
             r = build_rheology(spec, q)
             return jnp.concatenate([jnp.stack([r.glass_modulus, 3 * r.glass_modulus,
                                                3 * r.relaxed_modulus]), 3 * q[1:1 + n]])
-    p = jnp.asarray(p, dtype=float)
-    values = np.asarray(fn(p))
-    grad = np.asarray(jax.jacfwd(fn)(p))
-    cov = np.asarray(covariance, dtype=float)
-    out = []
-    for i, (name, unit, definition) in enumerate(rows):
-        g = grad[i]
-        used = [j for j in range(len(names)) if g[j] != 0 and status[j] != "fixed"]
-        ok = all(status[j] == "ok" for j in used)
-        if ok and used:
-            c = cov[np.ix_(used, used)]
-            var = float(g[used] @ c @ g[used]) if np.all(np.isfinite(c)) else math.nan
-            se = math.sqrt(var) if var >= 0 else math.nan
-        else:
-            se = 0.0 if ok else math.nan  # every parameter it depends on fixed: exact
-        out.append({"name": name, "unit": unit, "value": float(values[i]), "stderr": se,
-                    "status": "ok" if ok and math.isfinite(se) else "not determined",
-                    "definition": definition + (" (E = 2(1 + nu) G, nu = 0.5)"
-                                                if name.startswith("E") else "")})
-    return out
+    return rows, jax.jit(lambda q: (fn(q), jax.jacfwd(fn)(q)))

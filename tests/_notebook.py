@@ -151,6 +151,20 @@ def _same_text(stored: str, now: str, *, numbers: bool = True) -> str | None:
     return None
 
 
+def check_stored(name: str) -> None:
+    """Every code cell of `notebooks/<name>` carries stored outputs made from its current
+    source (the SHA-256 of the source recorded when they were stored), without running it."""
+    cells = json.loads((NOTEBOOK_DIR / name).read_text())["cells"]
+    code = [c for c in cells if c["cell_type"] == "code"]
+    assert code, f"{name} has no code cells"
+    for c in code:
+        stored_sha = c.get("metadata", {}).get("jaxcontact", {}).get("source_sha256")
+        assert stored_sha == _sha(c), (
+            f"{name} cell {c.get('id')}: its stored outputs are not those of its source; "
+            f"run `python tests/_notebook.py {name}`")
+        assert c.get("outputs") is not None, f"{name} cell {c.get('id')}: no stored outputs"
+
+
 def run_notebook(name: str, *, conventions: bool = True, write: bool = False) -> None:
     """Run every code cell of `notebooks/<name>` in one namespace, from `notebooks/`.
 
@@ -165,11 +179,7 @@ def run_notebook(name: str, *, conventions: bool = True, write: bool = False) ->
     code = [c for c in cells if c["cell_type"] == "code"]
     assert code, f"{name} has no code cells"
     if not write:
-        for c in code:
-            stored_sha = c.get("metadata", {}).get("jaxcontact", {}).get("source_sha256")
-            assert stored_sha == _sha(c), (
-                f"{name} cell {c.get('id')}: its stored outputs are not those of its source; "
-                f"run `python tests/_notebook.py {name}`")
+        check_stored(name)
     namespace = {"__name__": "__notebook__"}
     cwd = os.getcwd()
     os.chdir(NOTEBOOK_DIR)

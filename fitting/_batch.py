@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from collections.abc import Mapping, Sequence
 
@@ -38,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._progress import Progress
 from jaxcontact._validate import plain
 
 from ._curve import Curve
@@ -184,19 +184,6 @@ class FitEachResult:
         return self.summary()
 
 
-class _Progress:
-    def __init__(self, enabled: bool, total: int):
-        self.enabled, self.total, self.t0 = enabled, total, time.perf_counter()
-
-    def __call__(self, stage: str, done: int):
-        if not self.enabled:
-            return
-        dt = time.perf_counter() - self.t0
-        eta = dt / done * (self.total - done) if 0 < done < self.total else 0.0
-        print(f"[fit-each {dt:7.1f} s] {stage}: {done}/{self.total} curves"
-              + (f", about {eta:.0f} s left" if eta else ""), file=sys.stderr, flush=True)
-
-
 def _message(exc: BaseException) -> str:
     text = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
     return " ".join(text.split())
@@ -274,7 +261,7 @@ def fit_each(
         indentation_range=indentation_range, segments=segments)
     t_start = time.perf_counter()
     timings = {"prepare": 0.0, "optimise": 0.0, "finish": 0.0}
-    show = _Progress(progress, len(items))
+    show = Progress(progress, "fit-each", total=len(items)).stage  # (stage, done)
     results: list[FitResult | None] = [None] * len(items)
     previous: dict[int, FitResult] = {}
     spec = None

@@ -45,7 +45,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import sys
 import threading
 import time
 import warnings
@@ -56,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._progress import Progress
 from jaxcontact._validate import plain
 
 from ._caller import warn_at_caller
@@ -249,17 +249,6 @@ def _compile_in_background(fn, *args) -> threading.Thread:
     return thread
 
 
-class _Progress:
-    def __init__(self, enabled: bool):
-        self.enabled = enabled
-        self.t0 = time.perf_counter()
-
-    def __call__(self, msg: str):
-        if self.enabled:
-            print(f"[fit {time.perf_counter() - self.t0:7.2f} s] {msg}", file=sys.stderr,
-                  flush=True)
-
-
 def _r2(model, data, mask) -> float:
     """$R^2$ over the masked samples, each weighted by the measured samples it stands for."""
     return r_squared(model, data.force, data.weight, mask)
@@ -399,7 +388,7 @@ def fit(
 
     **Raises:** `ValueError` naming the argument for bad options or data.
     """
-    show = _Progress(progress)
+    show = Progress(progress, "fit").message  # one timestamped line per call
     curves, opts, chain = _options(
         curves, radius=radius, profile=profile, model=model, rheology=rheology,
         spring_constant=spring_constant, initial=initial, fixed=fixed, bounds=bounds,

@@ -215,13 +215,43 @@ def canonical_name(name: str, names: Sequence[str]) -> str:
     raise KeyError(f"unknown parameter {name!r}; the parameters are {list(names)}")
 
 
+def _as_shear(name: str, value, names: Sequence[str]):
+    """`(shear name, value / 3)` for a Young's modulus (``"E0"``, ``"E1"``, ``"E"``,
+    ``"E_inf"``, ``"E_k"``, with or without ``"_Pa"``) of a shear modulus among `names`
+    ($E = 2(1+\nu)G = 3G$, $\nu = 1/2$: the model's incompressible half-space); a pair of
+    bounds converted alike, None kept; `KeyError` if `name` is no such modulus."""
+    base = name[:-3] if name.endswith("_Pa") else name
+    if not base.startswith("E"):
+        raise KeyError(name)
+    shear = "G" + base[1:]
+    if shear not in names or _info(shear)[2] != "modulus":
+        raise KeyError(name)
+
+    def third(x):
+        return None if x is None else float(x) / 3.0
+
+    if isinstance(value, tuple | list):
+        return shear, type(value)(third(x) for x in value)
+    return shear, third(value)
+
+
 def normalise_names(mapping, names, what: str) -> dict:
-    """`mapping` keyed by short parameter names; `ValueError` naming `what` if unknown."""
+    """`mapping` keyed by short parameter names (a Young's modulus ``E0``, ``E1``, ``E``,
+    ``E_inf``, ``E_k`` is taken as the shear modulus ``G...`` of a third of its value, its
+    bounds alike); `ValueError` naming `what` if unknown or given twice."""
     out = {}
     for k, v in (mapping or {}).items():
         try:
-            out[canonical_name(k, names)] = v
+            key, val = canonical_name(k, names), v
         except KeyError:
-            raise ValueError(f"{what}: unknown parameter {k!r}; the parameters are "
-                             f"{list(names)}") from None
+            try:
+                key, val = _as_shear(k, v, names)
+            except KeyError:
+                raise ValueError(f"{what}: unknown parameter {k!r}; the parameters are "
+                                 f"{list(names)} (moduli may be given as Young's moduli "
+                                 "E = 3G: E0, E1, E, E_inf, E_k)") from None
+        if key in out:
+            raise ValueError(f"{what}: {key!r} is given twice ({k!r} and its shear or "
+                             "Young's form)")
+        out[key] = val
     return out

@@ -206,3 +206,24 @@ def test_elastic_retract_only_fit_recovers_G_and_work_of_adhesion():
         j = res.names.index(name)
         assert abs(res[name] - true) < 4.0 * res.stderr[j], name
         assert res[name] == pytest.approx(true, rel=0.03), name
+
+
+def test_moduli_may_be_given_as_youngs_moduli(hertz_fit):
+    # E = 3G (incompressible half-space): a start and bounds given in E are those of G = E/3;
+    # the same search ends at the same optimum
+    E, res, _ = hertz_fit
+    d, f = res.curves[0].displacement, res.curves[0].force
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        again = fitting.fit(approach_curve(d, f), **FIT, initial={"E": 2.5e3},
+                            bounds={"E_Pa": (300.0, 3e4)})
+    j = again.names.index("G")
+    lo, hi = (float(np.exp(again.parameterisation.lower[j])),
+              float(np.exp(again.parameterisation.upper[j])))  # G is fitted in logs
+    assert (lo, hi) == pytest.approx((100.0, 1e4), rel=1e-12)
+    assert again.chi2 == pytest.approx(res.chi2, rel=1e-6)
+    assert again["G"] == pytest.approx(res["G"], rel=1e-5)
+    with pytest.raises(ValueError, match="unknown parameter 'E_inf'.*Young's moduli"):
+        fitting.fit(approach_curve(d, f), **FIT, initial={"E_inf": 1e3})
+    with pytest.raises(ValueError, match="'G' is given twice"):
+        fitting.fit(approach_curve(d, f), **FIT, initial={"G": 1e3, "E": 3e3})

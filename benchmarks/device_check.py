@@ -83,7 +83,7 @@ def main(argv=None):
 
     print("\n| history sweep curves | precision | warm [s] | curves/s |\n"
           "| --- | --- | --- | --- |", flush=True)
-    for m in (int(x) for x in str(args.history).split(",")):
+    for m in (int(x) for x in str(args.history).split(",") if x.strip()):
         grid = {"G0": 1e6, "G1": np.geomspace(1e5, 1e6, 8), "eta1": 1e4,
                 "work_of_adhesion": 0.05, "R": 1e-2, "depth": 1e-4,
                 "velocity": np.geomspace(1e-5, 1e-2, m // 8), "hold": 1.0}

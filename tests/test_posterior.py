@@ -194,12 +194,7 @@ def test_cli_posterior_writes_listed_files(tmp_path, fit_result, capsys):
     from jaxcontact_cli import main
     from jaxcontact_cli._common import MANIFEST
 
-    files = []
-    for i, c in enumerate(fit_result.curves):
-        p = tmp_path / f"c{i}.csv"
-        np.savetxt(p, np.column_stack([c.time, c.displacement, c.force]), delimiter=",",
-                   header="time_s,displacement_m,force_N", comments="")
-        files.append(str(p))
+    files = _as_csv_files(fit_result.curves, tmp_path)
     out = tmp_path / "out"
     rc = main(["fit", *files, "--radius", str(R), "--starts", "2", "--posterior",
                "--draws", str(DRAWS), "--chains", str(CHAINS), "--quiet", "--no-figure",
@@ -234,12 +229,7 @@ def test_cli_figures_and_posterior_band(tmp_path, fit_result):
     fm = np.asarray(fit_result.model_force)
     inside = (lo[valid] - 1e-12 <= fm[valid]) & (fm[valid] <= hi[valid] + 1e-12)
     assert inside.mean() > 0.8
-    files = []
-    for i, c in enumerate(fit_result.curves):
-        p = tmp_path / f"c{i}.csv"
-        np.savetxt(p, np.column_stack([c.time, c.displacement, c.force]), delimiter=",",
-                   header="time_s,displacement_m,force_N", comments="")
-        files.append(str(p))
+    files = _as_csv_files(fit_result.curves, tmp_path)
     out = tmp_path / "out"
     assert main(["fit", *files, "--radius", str(R), "--starts", "2", "--posterior",
                  "--draws", str(DRAWS), "--chains", str(CHAINS), "--quiet",
@@ -247,3 +237,14 @@ def test_cli_figures_and_posterior_band(tmp_path, fit_result):
     listed = set(json.loads((out / MANIFEST).read_text())["files"])
     assert {"corner.png", "fit.png", "posterior.nc"} <= listed
     assert (out / "corner.png").stat().st_size > 10_000
+
+
+def _as_csv_files(curves, folder) -> list[str]:
+    """The curves as CSV files (time, displacement, force) for the command line."""
+    files = []
+    for i, c in enumerate(curves):
+        p = folder / f"c{i}.csv"
+        np.savetxt(p, np.column_stack([c.time, c.displacement, c.force]), delimiter=",",
+                   header="time_s,displacement_m,force_N", comments="")
+        files.append(str(p))
+    return files

@@ -172,8 +172,9 @@ class CurveBatch(eqx.Module):
     indentation, or the base position $z = d + F/k$ under compliant loading), `indentation`
     [m], `force` [N], `valid` (1: a sample, 0: padding), `weight` (number of measured
     samples a kept sample stands for; 0 for padding), `lower`, `upper` [s] (the interval a
-    sample stands for: halfway to its neighbours; the model's jump-off is resolved inside
-    it), `segment` (index into :data:`SEGMENTS`), `index` (sample index in the curve as
+    sample stands for: halfway to its neighbours, the first and last ending at the first and
+    last sample; the model's jump-off is resolved inside it), `segment` (index into
+    :data:`SEGMENTS`), `index` (sample index in the curve as
     given), `contact` (1 where the data are in contact: indentation > 0 before the measured
     jump-off, or $|F| > 3\sigma$), `noise` [N] (per sample: the curve's noise, larger at the
     measured jump-off), `sigma` [N] (the curve's noise), `depth` [m] (relaxed depth, or
@@ -284,12 +285,20 @@ def sample_weights(pick: np.ndarray, n: int) -> np.ndarray:
 
 
 def _intervals(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Halfway points to the neighbours (the first and last sample mirror their step)."""
+    r"""Halfway points to the neighbours; the first interval starts at the first sample and
+    the last ends at the last sample.
+
+    The forward models are simulated on $[t_0, t_\mathrm{end}]$ only, so a jump-off can be
+    resolved there only: with the last interval ending at $t_\mathrm{end}$ the effective
+    force of the last sample tends to the attached force as the model's jump-off time tends
+    to $t_\mathrm{end}$, i.e. the loss is continuous where the jump-off leaves the simulated
+    range (a last interval mirrored beyond $t_\mathrm{end}$ made it jump there by half of the
+    last sample's force: a spurious minimum of the loss at that edge)."""
     if t.size == 1:
         return t - 0.5, t + 0.5
     mid = 0.5 * (t[1:] + t[:-1])
-    lower = np.r_[t[0] - (mid[0] - t[0]), mid]
-    upper = np.r_[mid, t[-1] + (t[-1] - mid[-1])]
+    lower = np.r_[t[0], mid]
+    upper = np.r_[mid, t[-1]]
     return lower, upper
 
 

@@ -370,6 +370,37 @@ def test_early_jumpoff_never_lowers_the_loss():
     assert np.max(np.abs(np.diff(loss))) < 0.02 * (loss.max() - loss.min())
 
 
+def test_loss_is_continuous_where_the_jumpoff_leaves_the_simulated_times():
+    """The models are simulated up to the last sample: a model whose jump-off time t* tends
+    to t_end from below must tend to the loss of the same model still attached at t_end (no
+    jump-off found). Measured on the README's oocyte curve: a last interval mirrored beyond
+    t_end made the loss drop by 1.7 % at that edge, a spurious optimum that a search found."""
+    spec = make_spec()
+    n = 50
+    ts = np.linspace(0.0, 1.0, n)
+    attached = -1e-7 * (1.0 + ts)  # an adhesive (tensile) force, still attached at t_end
+    curve = fitting.Curve(time=ts, displacement=1e-6 * (1 - ts),
+                          force=attached + 1e-10 * np.sin(7 * ts),
+                          segment=np.zeros(n, int), segment_names=("retract",))
+    data = prepare_curves([curve], spec, radius=R)
+
+    def loss(sol):
+        model = fitting.effective_force(sol, data)
+        r = np.asarray(jnp.sqrt(data.weight) * (model - data.force) / data.noise)
+        return float(np.sum(r * r))
+
+    still_attached = types.SimpleNamespace(force=jnp.asarray(attached)[None],
+                                           jumpoff_time=jnp.asarray([np.nan]),
+                                           jumpoff_force=jnp.asarray([np.nan]))
+    l_end = loss(still_attached)
+    gaps = [abs(loss(_step_solution(ts, attached, 1.0 - eps)) - l_end)
+            for eps in (1e-3, 1e-5, 1e-7)]
+    one_sample = loss(_step_solution(ts, attached, ts[-2] - 1e-9)) - l_end  # one sample lost
+    assert one_sample > 0
+    assert gaps[0] < 0.2 * one_sample
+    assert gaps[2] < 1e-3 * one_sample and gaps[2] < gaps[0]
+
+
 def test_jump_resolution_in_the_standard_error():
     """The jump-off time is known from point samples only to the sampling interval; the
     two samples at the measured jump carry that in their noise, so a pinned jump-off does

@@ -7,6 +7,8 @@ import dataclasses
 import logging
 import math
 import pathlib
+import zipfile
+import zlib
 from collections.abc import Mapping
 from typing import Any
 
@@ -173,11 +175,10 @@ def load_afm(
                 _afm_curve(ds, path, spring_constant, height_column, baseline,
                            contact_point, limits, preprocess_kw, sample_rate, reader)
             )
-        except (KeyboardInterrupt, SystemExit, GeneratorExit, MemoryError):
-            raise
-        except BaseException as exc:  # noqa: BLE001 - afmformats' lazy loaders raise
-            # BaseException subclasses; a curve's failure is reported, never a traceback
-            msg = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+        except BaseException as exc:  # noqa: BLE001 - filtered by _curve_failure
+            msg = _curve_failure(exc)
+            if msg is None:
+                raise
             if on_error == "keep":
                 curves.append(FailedCurve(str(path), n, " ".join(msg.split()),
                                           _plain_metadata(ds)))
@@ -185,6 +186,24 @@ def load_afm(
             where = f"{path}" if len(datasets) == 1 else f"{path} (curve {n})"
             raise DataError(f"{where}: {msg}") from None
     return curves
+
+
+_READ_ERRORS = (KeyError, IndexError, OSError, EOFError, NotImplementedError,
+                zipfile.BadZipFile, zlib.error)
+
+
+def _curve_failure(exc: BaseException) -> str | None:
+    """The reason a curve failed, for errors of the data and of reading them: `ValueError`
+    (ours), the archive and lookup errors afmformats' lazy loaders raise when a curve's
+    data are read, and afmformats' own errors (which derive from `BaseException`, not
+    `Exception`); ``None`` for anything else (interrupts, programming errors such as a
+    `TypeError`), which is raised as it is."""
+    if isinstance(exc, ValueError):
+        return str(exc)
+    if isinstance(exc, _READ_ERRORS) or not isinstance(
+            exc, (Exception, KeyboardInterrupt, SystemExit, GeneratorExit)):
+        return f"{type(exc).__name__}: {exc}"
+    return None
 
 
 def _plain_metadata(ds) -> dict:
@@ -349,7 +368,6 @@ def _jpk_segment_names(path: pathlib.Path, present) -> tuple[str, ...] | None:
     styles in its segment headers (:func:`fitting._io_jpk.segment_kinds`)."""
     if path.suffix != ".jpk-force":
         return None
-    import zipfile
 
     key = "force-segment-header.settings.segment-settings.style="
     styles: list[str | None] = []

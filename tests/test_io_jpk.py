@@ -234,3 +234,20 @@ def test_junk_jpk_gives_each_readers_reason(tmp_path):
     msg = str(info.value)
     assert msg.startswith(str(p)) and "afmformats" in msg and "JPK reader" in msg
     assert "zip" in msg
+
+
+def test_a_map_point_afmformats_cannot_read_is_a_failed_point(tmp_path):
+    # afmformats accepts the map (its recogniser reads curve 0 only) and raises its own
+    # BaseException-derived error when curve 2's deflection is read: that point fails
+    # with the reason, the others load (before: the error escaped as a traceback)
+    path = tmp_path / "no-deflection.jpk-force-map"
+    with zipfile.ZipFile(MAP) as zin, zipfile.ZipFile(path, "w") as zout:
+        for item in zin.infolist():
+            if item.filename != "index/2/segments/1/channels/vDeflection.dat":
+                zout.writestr(item, zin.read(item.filename))
+    curves = fitting.load_curve(path, on_error="keep")
+    assert [type(c).__name__ for c in curves] == ["Curve", "Curve", "FailedCurve", "Curve"]
+    assert curves[0].metadata["reader"] == "afmformats"
+    assert "vDeflection" in curves[2].reason
+    with pytest.raises(fitting.DataError, match=r"\(curve 2\).*vDeflection"):
+        fitting.load_curve(path)

@@ -168,6 +168,13 @@ def load_afm(
             raise DataError(f"{path}: {refused}; the JPK reader cannot read it "
                             f"either ({exc})") from None
         reader = "jaxcontact-jpk"
+        if modality is not None:  # as afmformats: only the curves of that modality
+            modes = {ds.modality for ds in datasets if isinstance(ds, JPKCurve)}
+            datasets = [ds for ds in datasets
+                        if not isinstance(ds, JPKCurve) or ds.modality == modality]
+            if not any(isinstance(ds, JPKCurve) for ds in datasets):
+                raise DataError(f"{path}: no {modality} curves in the file (its curves: "
+                                f"{', '.join(sorted(modes)) or 'none readable'})")
     curves = []
     for n, ds in enumerate(datasets):
         try:

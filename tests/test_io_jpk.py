@@ -146,6 +146,10 @@ def test_refused_extend_pause_retract_curve_loads(tmp_path):
     assert p.spring_constant == pytest.approx(1.0677, rel=1e-4)
     assert 15e-6 < p.displacement.max() < 25e-6 and 2e-7 < p.force.max() < 4e-7
     assert p.time[-1] - p.time[0] == pytest.approx(31.95, abs=0.01)
+    # a modality asked for keeps only such curves, as afmformats does
+    with pytest.raises(fitting.DataError, match="no force-distance curves.*stress-relax"):
+        fitting.load_afm(path, modality="force-distance")
+    assert len(fitting.load_afm(path, modality="stress-relaxation")) == 1
 
 
 def test_refused_map_keeps_its_good_curves_and_names_the_bad_one(tmp_path):

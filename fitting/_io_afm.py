@@ -1,4 +1,5 @@
-"""AFM instrument files through afmformats: :func:`load_afm`."""
+"""AFM instrument files through afmformats, and JPK files it refuses through
+:mod:`fitting._io_jpk`: :func:`load_afm`."""
 
 from __future__ import annotations
 
@@ -6,12 +7,15 @@ import dataclasses
 import logging
 import math
 import pathlib
+import zipfile
+import zlib
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from ._curve import DEFAULT_LIMITS, DEFAULT_SEGMENT_NAMES, Curve, DataError, Limits
+from ._io_jpk import JPK_SUFFIXES, JPKCurve, read_jpk, segment_kinds
 from ._preprocess import preprocess
 
 __all__ = ["load_afm", "FailedCurve"]
@@ -56,7 +60,14 @@ def load_afm(
 
     Reads whatever afmformats reads (JPK ``.jpk-force``, ``.jpk-force-map``,
     ``.jpk-qi-data``; Asylum ``.ibw``; afmformats' HDF5/tab/txt exports, ...); see
-    ``afmformats.supported_extensions``.
+    ``afmformats.supported_extensions``. A JPK file (``.jpk-force``, ``.jpk-force-map``,
+    ``.jpk-qi-data``, ``.jpk-qi-series``) that afmformats refuses (its recogniser knows
+    three segment layouts only: extend–retract, extend–constant-force pause–retract,
+    pause–extend–constant-height pause–retract; newer JPK software also writes e.g.
+    extend–pause–retract maps) or that is read without afmformats installed goes to
+    :func:`fitting._io_jpk.read_jpk`, which reads any layout of extend, retract and pause
+    segments into the same columns and metadata (``metadata["reader"]``: ``"afmformats"``
+    or ``"jaxcontact-jpk"``).
 
     * Height: ``height (measured)`` (closed-loop sensor) when present, else
       ``height (piezo)``; choose with ``height_column``. Base displacement toward the
@@ -93,20 +104,25 @@ def load_afm(
       with the reason, and the other curves load: a force map with a few bad points).
 
     Raises:
-        ImportError: afmformats is not installed (``pip install jaxcontact[afm]``).
-        DataError: a file afmformats cannot read (unsupported, empty, truncated,
-            corrupt), unreadable data, an empty segment, NaN values, or a failed contact
-            detection (the message names the file).
+        ImportError: afmformats is not installed and the file is not a JPK file
+            (``pip install jaxcontact[afm]``).
+        DataError: a file neither afmformats nor the JPK reader can read (unsupported,
+            empty, truncated, corrupt; the message gives each reader's reason), unreadable
+            data, an empty segment, NaN values, or a failed contact detection (the
+            message names the file).
     """
-    try:
-        import afmformats
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "reading AFM files needs afmformats: pip install 'jaxcontact[afm]'"
-        ) from exc
     if on_error not in ("raise", "keep"):
         raise ValueError(f"on_error must be 'raise' or 'keep'; got {on_error!r}")
     path = pathlib.Path(path)
+    jpk = path.suffix.lower() in JPK_SUFFIXES
+    try:
+        import afmformats
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        if not jpk:
+            raise ImportError(
+                "reading AFM files needs afmformats: pip install 'jaxcontact[afm]'"
+            ) from exc
+        afmformats = None
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     meta_override = {}
@@ -117,42 +133,84 @@ def load_afm(
         meta_override["sensitivity"] = s
         if spring_constant is not None:
             meta_override["spring constant"] = float(spring_constant)
-    afm_log = logging.getLogger("afmformats")
-    level = afm_log.level
-    afm_log.setLevel(logging.CRITICAL)  # its failed-recogniser tracebacks are not errors
-    try:
-        datasets = afmformats.load_data(path, modality=modality,
-                                        meta_override=meta_override or None)
-    except (KeyboardInterrupt, SystemExit, GeneratorExit):
-        raise
-    except BaseException as exc:  # afmformats' errors derive from BaseException
-        hint = ""
-        if type(exc).__name__ == "MissingMetaDataError":
-            hint = ("; the file stores the deflection in volts: give spring_constant [N/m] "
-                    "and sensitivity [m/V] (command line: --spring-constant, --sensitivity)")
-        raise DataError(
-            f"{path}: afmformats cannot read it "
-            f"({type(exc).__name__}: {str(exc).replace(str(path), 'the file')}){hint}"
-        ) from None
-    finally:
-        afm_log.setLevel(level)
-    if not datasets:
-        raise DataError(f"{path}: afmformats found no curves in the file")
+    datasets = None
+    refused = "afmformats is not installed"
+    if afmformats is not None:
+        afm_log = logging.getLogger("afmformats")
+        level = afm_log.level
+        afm_log.setLevel(logging.CRITICAL)  # its failed-recogniser tracebacks are not errors
+        try:
+            datasets = afmformats.load_data(path, modality=modality,
+                                            meta_override=meta_override or None)
+        except (KeyboardInterrupt, SystemExit, GeneratorExit):
+            raise
+        except BaseException as exc:  # afmformats' errors derive from BaseException
+            hint = ""
+            if type(exc).__name__ == "MissingMetaDataError":
+                hint = ("; the file stores the deflection in volts: give spring_constant "
+                        "[N/m] and sensitivity [m/V] (command line: --spring-constant, "
+                        "--sensitivity)")
+            refused = (f"afmformats cannot read it "
+                       f"({type(exc).__name__}: {str(exc).replace(str(path), 'the file')})"
+                       f"{hint}")
+            if not jpk or hint:
+                raise DataError(f"{path}: {refused}") from None
+        finally:
+            afm_log.setLevel(level)
+        if datasets is not None and not datasets:
+            raise DataError(f"{path}: afmformats found no curves in the file")
+    reader = "afmformats"
+    if datasets is None:  # a JPK file afmformats refuses or cannot be asked about
+        try:
+            datasets = read_jpk(path, sensitivity=sensitivity,
+                                spring_constant=spring_constant if sensitivity else None)
+        except ValueError as exc:
+            raise DataError(f"{path}: {refused}; the JPK reader cannot read it "
+                            f"either ({exc})") from None
+        reader = "jaxcontact-jpk"
+        if modality is not None:  # as afmformats: only the curves of that modality
+            modes = {ds.modality for ds in datasets if isinstance(ds, JPKCurve)}
+            datasets = [ds for ds in datasets
+                        if not isinstance(ds, JPKCurve) or ds.modality == modality]
+            if not any(isinstance(ds, JPKCurve) for ds in datasets):
+                raise DataError(f"{path}: no {modality} curves in the file (its curves: "
+                                f"{', '.join(sorted(modes)) or 'none readable'})")
     curves = []
     for n, ds in enumerate(datasets):
         try:
             curves.append(
                 _afm_curve(ds, path, spring_constant, height_column, baseline,
-                           contact_point, limits, preprocess_kw, sample_rate)
+                           contact_point, limits, preprocess_kw, sample_rate, reader)
             )
-        except ValueError as exc:
+        except BaseException as exc:  # noqa: BLE001 - filtered by _curve_failure
+            msg = _curve_failure(exc)
+            if msg is None:
+                raise
             if on_error == "keep":
-                curves.append(FailedCurve(str(path), n, " ".join(str(exc).split()),
+                curves.append(FailedCurve(str(path), n, " ".join(msg.split()),
                                           _plain_metadata(ds)))
                 continue
             where = f"{path}" if len(datasets) == 1 else f"{path} (curve {n})"
-            raise DataError(f"{where}: {exc}") from None
+            raise DataError(f"{where}: {msg}") from None
     return curves
+
+
+_READ_ERRORS = (KeyError, IndexError, OSError, EOFError, NotImplementedError,
+                zipfile.BadZipFile, zlib.error)
+
+
+def _curve_failure(exc: BaseException) -> str | None:
+    """The reason a curve failed, for errors of the data and of reading them: `ValueError`
+    (ours), the archive and lookup errors afmformats' lazy loaders raise when a curve's
+    data are read, and afmformats' own errors (which derive from `BaseException`, not
+    `Exception`); ``None`` for anything else (interrupts, programming errors such as a
+    `TypeError`), which is raised as it is."""
+    if isinstance(exc, ValueError):
+        return str(exc)
+    if isinstance(exc, _READ_ERRORS) or not isinstance(
+            exc, (Exception, KeyboardInterrupt, SystemExit, GeneratorExit)):
+        return f"{type(exc).__name__}: {exc}"
+    return None
 
 
 def _plain_metadata(ds) -> dict:
@@ -180,8 +238,9 @@ def _sample_time(meta, n: int, sample_rate) -> np.ndarray:
 
 
 def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, pkw,
-               sample_rate=None):
+               sample_rate=None, reader="afmformats"):
     meta = dict(ds.metadata)
+    meta["reader"] = reader
     cols = list(ds.columns)
     if height_column is None:
         height_column = next(
@@ -218,9 +277,12 @@ def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, 
     mod = meta.get("imaging mode") or ds.modality
     expected = _MODALITY_SEGMENTS.get(mod)
     present = np.unique(seg_raw)
-    ibw = _ibw_segments(path, len(force)) if len(present) == 1 else None
-    jpk = _jpk_segment_names(path, present) if len(present) > 1 else None
-    if ibw is not None:
+    native = isinstance(ds, JPKCurve)  # the JPK reader names every file segment
+    ibw = _ibw_segments(path, len(force)) if len(present) == 1 and not native else None
+    jpk = _jpk_segment_names(path, present) if len(present) > 1 and not native else None
+    if native:
+        seg, names = seg_raw, ds.segment_names
+    elif ibw is not None:
         seg, names = ibw
     elif jpk is not None:
         seg, names = np.searchsorted(present, seg_raw), jpk
@@ -308,32 +370,23 @@ def _ibw_segments(path: pathlib.Path, n: int):
     return seg, tuple(names)
 
 
-_JPK_STYLE = {"extend": "approach", "retract": "retract"}
-
-
 def _jpk_segment_names(path: pathlib.Path, present) -> tuple[str, ...] | None:
-    """Segment names of a single-curve ``.jpk-force`` file from its segment headers."""
+    """Segment names of a single-curve ``.jpk-force`` file read by afmformats, from the
+    styles in its segment headers (:func:`fitting._io_jpk.segment_kinds`)."""
     if path.suffix != ".jpk-force":
         return None
-    import zipfile
 
     key = "force-segment-header.settings.segment-settings.style="
-    names: list[str] = []
+    styles: list[str | None] = []
     try:
         with zipfile.ZipFile(path) as z:
             for j in present:
                 text = z.read(f"segments/{int(j)}/segment-header.properties")
-                style = next(
+                styles.append(next(
                     (ln.split("=", 1)[1].strip()
                      for ln in text.decode("latin-1").splitlines() if ln.startswith(key)),
                     None,
-                )
-                if style == "pause":
-                    names.append("hold" if "approach" in names else "rest")
-                elif style in _JPK_STYLE:
-                    names.append(_JPK_STYLE[style])
-                else:
-                    return None
-    except (OSError, KeyError, zipfile.BadZipFile):
+                ))
+        return segment_kinds(styles)
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return None
-    return tuple(names)

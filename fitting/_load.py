@@ -7,6 +7,7 @@ import pathlib
 from ._curve import Curve, DataError
 from ._io_afm import FailedCurve, load_afm
 from ._io_csv import load_csv
+from ._io_jpk import JPK_SUFFIXES
 
 __all__ = ["load_curve", "TABLE_SUFFIXES", "supported_formats"]
 
@@ -26,13 +27,17 @@ def _afm_recipes(suffix: str) -> list:
 
 def supported_formats() -> str:
     """A one-line description of the readable file types (extensions and formats)."""
-    parts = [f"tables {' '.join(TABLE_SUFFIXES)} (header row; see load_csv)"]
+    parts = [f"tables {' '.join(TABLE_SUFFIXES)} (header row; see load_csv)",
+             f"{' '.join(JPK_SUFFIXES)} (JPK Instruments force curves and maps, any layout "
+             "of extend, retract and pause segments; through afmformats when it reads "
+             "them, else the built-in JPK reader)"]
     try:
         import afmformats.formats as afm_formats
     except ImportError:  # pragma: no cover - depends on the environment
-        return parts[0] + "; instrument files need afmformats"
+        return "; ".join(parts) + "; other instrument files need afmformats"
     for r in afm_formats.formats_available:
-        parts.append(f"{r.suffix} ({r.maker}, {r.descr})")
+        if r.suffix not in JPK_SUFFIXES:
+            parts.append(f"{r.suffix} ({r.maker}, {r.descr})")
     return "; ".join(parts)
 
 
@@ -74,7 +79,8 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
 
     - `path`: the file.
     - `format`: ``None`` (choose), ``"csv"`` (:func:`load_csv`) or ``"afm"``
-      (:func:`load_afm`, through afmformats).
+      (:func:`load_afm`, through afmformats; JPK files it refuses through the built-in
+      JPK reader).
     - `on_error`: for an instrument file with several curves (force map, QI series):
       ``"raise"`` (one bad curve is an error for the file) or ``"keep"`` (it is returned
       as a :class:`FailedCurve` with its reason; see :func:`load_afm`). A table holds
@@ -89,8 +95,8 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
     exports), else to :func:`load_csv`; if the table reader fails and afmformats has a
     reader for that suffix without a content check (AFM Workshop ``.csv``), that reader
     is tried before the table error is raised. Any other suffix afmformats knows
-    (``.jpk-force``, ``.jpk-force-map``, ``.jpk-qi-data``, ``.ibw``, ``.h5``, ...) goes to
-    :func:`load_afm`.
+    (``.jpk-force``, ``.jpk-force-map``, ``.jpk-qi-data``, ``.ibw``, ``.h5``, ...) and the
+    JPK suffixes (also without afmformats) go to :func:`load_afm`.
 
     **Returns:**
 
@@ -144,7 +150,7 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
                     raise DataError(f"{path}: not a table ({t}); as an instrument file "
                                     f"read by afmformats: {a}") from None
             raise table_error from None
-    if _afm_recipes(path.suffix):
+    if _afm_recipes(path.suffix) or suffix in JPK_SUFFIXES:
         return load_afm(path, on_error=on_error, **kw)
     raise DataError(
         f"{path}: unsupported file type {path.suffix or '(no suffix)'!r}; supported: "

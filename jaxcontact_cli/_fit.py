@@ -11,9 +11,11 @@ parameters afterwards (:func:`fitting.sample`, NUTS; ``--draws``, ``--chains``) 
 ``posterior.nc`` (the ArviZ groups), ``posterior.json``, ``posterior.csv``, ``corner.png``
 and the posterior band on ``fit.png``; the summary is printed after the fit's.
 
-Instrument files are read through afmformats (:func:`fitting.load_curve` decides by the
-file's content and suffix); tables (CSV/TSV) take ``--units``. ``--spring-constant`` given
-with an instrument file overrides the file's value and selects the compliant loading model.
+Instrument files are read through afmformats, and JPK files it refuses (segment layouts
+its recogniser does not know) or without it by the project's own JPK reader
+(:func:`fitting.load_curve` decides by the file's content and suffix); tables (CSV/TSV)
+take ``--units``. ``--spring-constant`` given with an instrument file overrides the file's
+value and selects the compliant loading model.
 
 Order of work: every argument and input file is checked, the output folder is checked
 (it must be new, empty, or an earlier jaxcontact output holding only the files its
@@ -78,7 +80,8 @@ def add_fit_arguments(parser):
     """Add the ``fit`` options to `parser` (an argparse parser)."""
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="curves: CSV/TSV (time_s,displacement_m,force_N; units in the "
-                             "header or --units) or AFM instrument files (afmformats)")
+                             "header or --units) or AFM instrument files (afmformats; JPK "
+                             "also without it)")
     parser.add_argument("--radius", type=float, default=None, metavar="M",
                         help="radius of curvature of a spherical indenter [m] in the "
                              "paraboloid (small-indentation) approximation: the same as "

@@ -174,15 +174,17 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
         raise ValueError("devices: give at least one device (or None for all local ones)")
     n = z0s.shape[0]
     n_dev = max(1, min(len(devices), n))
-    opts = dict(workers=int(workers), rtol=float(rtol), atol=float(atol), gtol=float(gtol),
-                max_steps=int(max_steps), optimiser=optimiser,
+    share = -(-n // n_dev)
+    # more lanes than a device's problems would idle (the pool takes the smaller number):
+    # the same program, so one compilation serves both
+    opts = dict(workers=max(1, min(int(workers), share)), rtol=float(rtol), atol=float(atol),
+                gtol=float(gtol), max_steps=int(max_steps), optimiser=optimiser,
                 keep_jacobian=bool(keep_jacobian))
     limits = np.broadcast_to(np.asarray(max_steps if limits is None else limits,
                                         dtype=np.int32), (n,))
     if n_dev == 1:
         with jax.default_device(devices[0]):
             return _solve_batch(spec, params, datas, z0s, limits, **opts)
-    share = -(-n // n_dev)
     fill = np.minimum(np.arange(n_dev * share), n - 1)
 
     def split(x):
@@ -264,7 +266,9 @@ def fit(curves: Curve | Sequence[Curve], *, options: FitOptions | None = None,
 
     How it relates to :func:`fitting.fit_each`: both run one pipeline (:func:`identify`:
     the same preparation, starts, global search, local rounds and finish); `fit` is its
-    case of one problem, made of all `curves` together, on at most 8 lanes of the pool.
+    case of one problem, made of all `curves` together, its starts on at most 8 lanes of
+    the pool (spread over the local devices, as :func:`solve_batch` does; the results do
+    not depend on the split, up to round-off).
     :func:`fitting.fit_each` makes one problem of each curve instead (a curve fitted there
     ends where `fit` of that curve alone ends). Only `fit` offers ``rheology="auto"``
     (standard, prony:2 and prony:3 fitted nested; the smallest BIC is kept, all three in

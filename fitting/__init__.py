@@ -4,7 +4,9 @@ compressive force positive, adhesion negative).
 
 Data in: :class:`Curve` and the loaders :func:`load_curve`, :func:`load_csv`,
 :func:`load_afm` with :func:`preprocess` (baseline, tip position, contact point).
-Identification: :func:`fit` (global search, uncertainty) → :class:`FitResult`;
+Identification: :func:`fit` (global search, uncertainty) → :class:`FitResult`, its options
+as keywords or one checked object :class:`FitOptions` (:class:`BatchOptions` for the
+scheduling of :func:`fit_each`);
 :func:`write_report` (``parameters.json``, ``parameters.csv``, ``fit.csv``);
 :func:`profile_likelihood`; :func:`sample` (the posterior of a fit by NUTS,
 numpyro) → :class:`PosteriorResult`; :func:`fit_each` (force maps, many curves: one fit per
@@ -35,12 +37,14 @@ from ._load import supported_formats as supported_formats
 from ._objective import effective_force as effective_force
 from ._objective import predict as predict
 from ._objective import residuals as residuals
-from ._optimise import DEFAULT_LOCAL_ROUNDS as DEFAULT_LOCAL_ROUNDS
-from ._optimise import DEFAULT_STARTS as DEFAULT_STARTS
-from ._optimise import OPTIMISERS as OPTIMISERS
 from ._optimise import fit as fit
 from ._optimise import solve as solve
 from ._optimise import solve_batch as solve_batch
+from ._options import DEFAULT_LOCAL_ROUNDS as DEFAULT_LOCAL_ROUNDS
+from ._options import DEFAULT_STARTS as DEFAULT_STARTS
+from ._options import OPTIMISERS as OPTIMISERS
+from ._options import BatchOptions as BatchOptions
+from ._options import FitOptions as FitOptions
 from ._parameters import Parameterisation as Parameterisation
 from ._parameters import make_parameterisation as make_parameterisation
 from ._posterior import PosteriorResult as PosteriorResult

@@ -32,28 +32,14 @@ import json
 import time
 from collections.abc import Mapping, Sequence
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-import jaxcontact as jc
 from jaxcontact._progress import Progress
-from jaxcontact._validate import plain
 
 from ._curve import Curve
 from ._io_afm import FailedCurve
-from ._least_squares import Solution
-from ._optimise import (
-    DEFAULT_LOCAL_ROUNDS,
-    _compile_in_background,
-    _finish,
-    _local_search,
-    _model_at,
-    _options,
-    _problem,
-    solve_batch,
-)
-from ._prepare import stack_batches
+from ._optimise import identify
+from ._options import BatchOptions, FitOptions, keyword_signature, split_keywords
 from ._quality import warn_summary
 from ._result import FitResult
 from ._spec import parameter_info, rheology_name
@@ -184,178 +170,67 @@ class FitEachResult:
         return self.summary()
 
 
-def _message(exc: BaseException) -> str:
-    text = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
-    return " ".join(text.split())
-
-
-def fit_each(
-    curves: Sequence[Curve | FailedCurve],
-    *,
-    radius: float | None = None,
-    profile: jc.AbstractProfile | None = None,
-    model: str = "relaxed",
-    rheology: str = "standard",
-    spring_constant: float | None = None,
-    initial: Mapping[str, float] | None = None,
-    fixed: Mapping[str, float] | None = None,
-    bounds: Mapping[str, tuple[float, float]] | None = None,
-    contact_point: str | None = None,
-    force_offset: bool = False,
-    n_starts: int | None = None,
-    max_samples: int | None = None,
-    indentation_range: tuple[float, float] | None = None,
-    segments: Sequence[str] | str | None = None,
-    cells: int = 32,
-    max_steps: int = 200,
-    optimiser: str = "lm",
-    rtol: float = 1e-8,
-    seed: int = 0,
-    local_rounds: int = DEFAULT_LOCAL_ROUNDS,
-    chunk: int = 8,
-    workers: int | None = None,
-    devices=None,
-    progress: bool = True,
-) -> FitEachResult:
+@keyword_signature(FitOptions, BatchOptions)
+def fit_each(curves: Sequence[Curve | FailedCurve], *, options: FitOptions | None = None,
+             batch: BatchOptions | None = None, **keywords) -> FitEachResult:
     r"""Fit every curve on its own, with shared settings, in batched compiled calls.
 
-    **Arguments:** `curves` (:class:`Curve` objects, and :class:`FailedCurve` records for
-    curves that could not be loaded: they are reported, not fitted); the options of
-    :func:`fitting.fit` (the same meaning, applied to each curve alone; `rheology` is
-    "standard", "elastic" or "prony:N", nested per curve as in :func:`fit`; "auto" is not offered: a
-    map needs one model for all points); `chunk` (curves per compiled call; every chunk
-    has this shape, so one compilation serves all); `workers` (lanes of the pool per
-    device; default: all starts of the chunk, at most 64); `devices` (see
-    :func:`fitting.solve_batch`); `progress` (stages on stderr).
+    **Arguments:**
+
+    - `curves`: :class:`Curve` objects, and :class:`FailedCurve` records for curves that
+      could not be loaded (they are reported, not fitted).
+    - `options`: a :class:`fitting.FitOptions`, or its fields as keywords: the options of
+      :func:`fitting.fit`, with the same meaning, applied to each curve alone (`rheology`
+      "standard", "elastic" or "prony:N", nested per curve; "auto" is not offered: a map
+      needs one model for all points; one `spring_constant` for all curves, or `None`).
+    - `batch`: a :class:`fitting.BatchOptions`, or its fields as keywords (`chunk`: curves
+      per compiled call; `workers`: lanes of the pool per device; `devices`): how the fits
+      are scheduled, which :func:`fitting.fit` does not need.
+
+    A keyword given beside `options` or `batch` must agree with it.
+
+    How it relates to :func:`fitting.fit`: both run one pipeline
+    (:func:`fitting._optimise.identify`); here every curve is its own problem, where
+    :func:`fitting.fit` makes one problem of all its curves (a joint fit). A curve fitted
+    here ends where :func:`fitting.fit` of that curve alone ends (a chunk runs its local
+    rounds while any of its curves improves, so a curve may get more rounds than alone,
+    never a worse optimum).
 
     **Returns:** a :class:`FitEachResult` (`.to_dataset()`, `.grid()`, `.summary()`).
 
     **Raises:** `ValueError` naming the argument for bad options, or when no curve can be
-    fitted (the reasons are listed). A curve that fails is reported in the result.
+    fitted (the reasons are listed); `TypeError` for an unknown keyword. A curve that
+    fails is reported in the result.
     """
     items = list(curves)
     if not items or not all(isinstance(c, Curve | FailedCurve) for c in items):
         raise ValueError("curves: give a non-empty list of Curve (or FailedCurve) objects")
-    if rheology == "auto":
-        raise ValueError("rheology: 'auto' is not offered by fit_each (a map needs one model "
-                         "for all points); choose 'standard' or 'prony:N'")
-    if not (isinstance(chunk, int | np.integer) and chunk >= 1):
-        raise ValueError(f"chunk must be an integer >= 1; got {plain(chunk)}")
-    if workers is not None and not (isinstance(workers, int | np.integer) and workers >= 1):
-        raise ValueError(f"workers must be an integer >= 1; got {plain(workers)}")
-    if spring_constant is not None and np.ndim(spring_constant) != 0:
-        raise ValueError("spring_constant: give one value for all curves (or None: each "
-                         "curve's own)")
+    fit_kw, batch_kw = split_keywords(keywords, FitOptions, BatchOptions, where="fit_each")
+    options = FitOptions.merge(options, fit_kw, where="fit_each").check_each_curve_alone()
+    batch = BatchOptions.merge(batch, batch_kw, where="fit_each")
     errors: list[str | None] = [c.reason if isinstance(c, FailedCurve) else None
                                 for c in items]
     good = [i for i, c in enumerate(items) if isinstance(c, Curve)]
     if not good:
         raise ValueError("curves: none could be loaded: "
                          + "; ".join(f"curve {i}: {e}" for i, e in enumerate(errors)))
-    _, opts, chain = _options(
-        [items[i] for i in good], radius=radius, profile=profile, model=model,
-        rheology=rheology, spring_constant=spring_constant, initial=initial, fixed=fixed,
-        bounds=bounds, contact_point=contact_point, force_offset=force_offset,
-        n_starts=n_starts, max_samples=max_samples, cells=cells, max_steps=max_steps,
-        optimiser=optimiser, rtol=rtol, seed=seed, local_rounds=local_rounds,
-        indentation_range=indentation_range, segments=segments)
     t_start = time.perf_counter()
-    timings = {"prepare": 0.0, "optimise": 0.0, "finish": 0.0}
-    show = Progress(progress, "fit-each", total=len(items)).stage  # (stage, done)
+    show = Progress(options.progress, "fit-each", total=len(items)).stage  # (stage, done)
+    out = identify([[items[i]] for i in good], options, batch, isolate=True, warn=False,
+                   progress=show)  # warnings summarised below
     results: list[FitResult | None] = [None] * len(items)
-    previous: dict[int, FitResult] = {}
-    spec = None
-    for rh in chain:
-        t0 = time.perf_counter()
-        problems = {}
-        for i in good:
-            if errors[i] is not None:
-                continue
-            try:
-                problems[i] = _problem([items[i]], rheology=rh, previous=previous.get(i),
-                                       host=True, **opts)
-            except (ValueError, ArithmeticError) as exc:
-                errors[i] = _message(exc)
-        timings["prepare"] += time.perf_counter() - t0
-        if not problems:
-            break
-        idx = list(problems)
-        spec = problems[idx[0]].spec
-        length = max(problems[i].data.ts.shape[1] for i in idx)
-        n_z = max(len(problems[i].zs) for i in idx)
-        for i in idx:  # one shape for all: padded samples, equal numbers of starts
-            pb = problems[i]
-            zs = np.concatenate([pb.zs, np.repeat(pb.zs[:1], n_z - len(pb.zs), axis=0)])
-            problems[i] = dataclasses.replace(pb, data=stack_batches([pb.data], length,
-                                                                   host=True),
-                                              zs=zs)
-        pb0 = problems[idx[0]]  # the finish's forward model compiles during the search
-        model_at = _compile_in_background(
-            _model_at, pb0.spec, pb0.param, jnp.asarray(pb0.param.internal_host(pb0.zs[0])),
-            pb0.data)
-        size = min(chunk, len(idx))
-        lanes = workers if workers is not None else min(64, size * n_z)
-        for c0 in range(0, len(idx), size):
-            part = idx[c0:c0 + size]
-            fill = part + [part[-1]] * (size - len(part))  # the last chunk padded
-            t0 = time.perf_counter()
-            params = _stack([problems[i].param for i in fill], n_z)
-            datas = _stack([problems[i].data for i in fill], n_z)
-
-            solve = dict(spec=spec, params=params, datas=datas, n_z=n_z, workers=lanes,
-                         rtol=float(rtol), max_steps=int(max_steps), optimiser=optimiser,
-                         devices=devices)
-
-            def run(starts, limits, solve=solve):
-                return _run_chunk(starts, limits=np.concatenate(limits), **solve)
-
-            outs = run([problems[i].zs for i in fill],
-                       [np.full(n_z, int(max_steps), dtype=np.int32)] * len(fill))
-            # as in `fit`, for each curve (a curve whose rounds are done is not run)
-            outs = _local_search([problems[i].param for i in fill], outs, run, n=n_z,
-                                 local_rounds=opts["local_rounds"], seed=seed,
-                                 max_steps=int(max_steps))
-            model_at.join()
-            timings["optimise"] += time.perf_counter() - t0
-            t0 = time.perf_counter()
-            for j, i in enumerate(part):
-                try:
-                    res = _finish(problems[i], [items[i]], opts["profile"], outs[j], optimiser,
-                                  show=lambda _m: None, warn=False,  # summarised below
-                                  timings={}, t_start=time.perf_counter(),
-                                  max_steps=int(max_steps))
-                except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-                    errors[i] = _message(exc)
-                    continue
-                previous[i] = res
-                results[i] = res if rh == chain[-1] else None
-            timings["finish"] += time.perf_counter() - t0
-            show(f"{rheology_name(spec)}", min(c0 + size, len(idx)))
-    for i in good:  # a curve that failed in a later step of the chain has no result
-        if errors[i] is not None:
-            results[i] = None
+    for g, i in enumerate(good):
+        errors[i] = out.errors[g]
+        results[i] = out.final(g)
+    spec = out.spec
     info = parameter_info(spec) if spec is not None else []
-    timings["total"] = time.perf_counter() - t_start
+    timings = dict(out.timings, total=time.perf_counter() - t_start)
     warn_summary(results)  # each curve's warnings are in its result: one warning per kind
     return FitEachResult(
         results=results, errors=errors,
         sources=[c.source for c in items],
         metadata=[dict(c.metadata) for c in items],
         names=[n for n, _, _ in info], units=[u for _, u, _ in info],
-        columns=[f"{n}_{u}" for n, u, _ in info], model=model,
-        rheology=rheology_name(spec) if spec is not None else rheology, timings=timings)
-
-
-def _run_chunk(z0s, *, spec, params, datas, n_z, optimiser, **kw) -> list[Solution]:
-    """The host :class:`Solution` of the `n_z` starts of each problem of a chunk."""
-    out = jax.device_get(solve_batch(spec, params, datas, np.concatenate(z0s),
-                                     optimiser=optimiser, keep_jacobian=optimiser == "lm",
-                                     **kw))
-    return [out.take(np.arange(j * n_z, (j + 1) * n_z)) for j in range(len(z0s))]
-
-
-def _stack(trees, repeat: int):
-    """One pytree with a leading problem axis: each of `trees` repeated `repeat` times."""
-    host = [jax.device_get(t) for t in trees]
-    return jax.device_put(jax.tree.map(lambda *x: np.repeat(np.stack(x), repeat, axis=0),
-                                       *host))
+        columns=[f"{n}_{u}" for n, u, _ in info], model=options.model,
+        rheology=rheology_name(spec) if spec is not None else options.rheology,
+        timings=timings)

@@ -7,9 +7,10 @@ How :func:`fit` finds the optimum
 2. **Global search.** `n_starts` starts (:func:`fitting._start.search_starts`: the
    data-based guess and a Latin hypercube over physically bounded ranges; for a Prony
    series also the nested starts from the simpler model's optimum) each run to
-   convergence (`rtol`, at most `max_steps` iterations) in one compiled call, scheduled
-   as a pool of lanes (:func:`fitting._least_squares.run_pool`: a lane whose start has
-   converged takes the next one). Then up to `local_rounds` rounds of as many starts
+   convergence (`rtol`, at most `max_steps` iterations) in one compiled call
+   (:func:`solve_batch`), scheduled as a pool of lanes
+   (:func:`fitting._least_squares.run_pool`: a lane whose start has converged takes the
+   next one). Then up to `local_rounds` rounds of as many starts
    around the best end points (:func:`fitting._start.local_starts`: the best continued,
    pattern moves along the line of the best optima, a small Latin hypercube, widened
    after a round without progress), the same compiled call, until the widest round no
@@ -35,6 +36,13 @@ Contact point: with ``contact_point="fit"`` (default for curves whose contact po
 detected by a loader) the indentation offset $\delta$ [m] is a fitted parameter, started
 at the detection ($\delta = 0$); ``force_offset=True`` adds a force offset $F_0$ [N].
 
+One pipeline: :func:`fit` and :func:`fitting.fit_each` both run :func:`identify` (their
+options one checked :class:`fitting.FitOptions`). :func:`fit` is its case of one problem
+(all its curves together, a joint fit), :func:`fitting.fit_each` that of one problem per
+curve, in chunks (:class:`fitting.BatchOptions`); every step above (preparation, starts,
+global search, local rounds, finish) is the same code for both, each search one call of
+:func:`solve_batch`.
+
 Batches: :func:`solve` runs the optimiser from several starts of one problem;
 :func:`solve_batch` runs many independent problems in one compiled pool, spread over the
 local devices.
@@ -48,7 +56,7 @@ import math
 import threading
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -56,21 +64,27 @@ import numpy as np
 
 import jaxcontact as jc
 from jaxcontact._progress import Progress
-from jaxcontact._validate import plain
 
 from ._caller import warn_at_caller
 from ._curve import Curve
-from ._least_squares import LBFGS, RESULTS, LevenbergMarquardt, Solution, run_pool, run_starts
+from ._least_squares import RESULTS, Solution, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
+from ._options import (
+    SINGLE,
+    BatchOptions,
+    FitOptions,
+    keyword_signature,
+    make_solver,
+    split_keywords,
+)
 from ._parameters import Parameterisation, make_parameterisation
 from ._prepare import (
     SEGMENTS,
     CurveBatch,
-    check_indentation_range,
-    check_segments,
     contact_point_mode,
     prepare_curves,
     select_fit_segments,
+    stack_batches,
 )
 from ._quality import assess, check_contact_signal, r_squared
 from ._result import FitResult, ModelChoice
@@ -93,17 +107,7 @@ from ._start import (
 )
 from ._uncertainty import IdentifiabilityWarning, ModelValidityWarning, gauss_newton
 
-__all__ = ["OPTIMISERS", "fit", "solve", "solve_batch", "DEFAULT_STARTS",
-           "DEFAULT_LOCAL_ROUNDS"]
-
-#: The optimisers of :func:`fit` and :func:`solve`.
-OPTIMISERS = ("lm", "lbfgs")
-
-#: Default number of starts of the global search.
-DEFAULT_STARTS = 16
-
-#: Default largest number of local rounds after the global search.
-DEFAULT_LOCAL_ROUNDS = 3
+__all__ = ["fit", "solve", "solve_batch", "identify", "Identified"]
 
 
 def _fn(spec: ModelSpec):
@@ -117,11 +121,7 @@ def _fn(spec: ModelSpec):
 
 
 def _solver(optimiser: str, rtol: float, atol: float, gtol: float, max_steps: int):
-    if optimiser == "lm":
-        return LevenbergMarquardt(rtol=rtol, atol=atol, max_steps=max_steps)
-    if optimiser == "lbfgs":
-        return LBFGS(rtol=rtol, gtol=gtol, max_steps=max_steps)
-    raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
+    return make_solver(optimiser, rtol=rtol, atol=atol, gtol=gtol, max_steps=max_steps)
 
 
 _OPTIONS = ("rtol", "atol", "gtol", "max_steps", "optimiser", "workers")
@@ -174,15 +174,17 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
         raise ValueError("devices: give at least one device (or None for all local ones)")
     n = z0s.shape[0]
     n_dev = max(1, min(len(devices), n))
-    opts = dict(workers=int(workers), rtol=float(rtol), atol=float(atol), gtol=float(gtol),
-                max_steps=int(max_steps), optimiser=optimiser,
+    share = -(-n // n_dev)
+    # more lanes than a device's problems would idle (the pool takes the smaller number):
+    # the same program, so one compilation serves both
+    opts = dict(workers=max(1, min(int(workers), share)), rtol=float(rtol), atol=float(atol),
+                gtol=float(gtol), max_steps=int(max_steps), optimiser=optimiser,
                 keep_jacobian=bool(keep_jacobian))
     limits = np.broadcast_to(np.asarray(max_steps if limits is None else limits,
                                         dtype=np.int32), (n,))
     if n_dev == 1:
         with jax.default_device(devices[0]):
             return _solve_batch(spec, params, datas, z0s, limits, **opts)
-    share = -(-n // n_dev)
     fill = np.minimum(np.arange(n_dev * share), n - 1)
 
     def split(x):
@@ -208,16 +210,6 @@ def _pmapped_pool(spec, devices, opts):
     # every device runs `_solve_batch` on its share
     return jax.pmap(lambda p, d, z, lim: _solve_batch(spec, p, d, z, lim, **dict(opts)),
                     devices=list(devices))
-
-
-@functools.partial(jax.jit, static_argnames=("solver", "workers"))
-def _search(spec, param, data, z0s, limits, solver, workers) -> Solution:
-    """All starts in one pool, each with its step limit; the :class:`Solution` of each
-    (with `r`, `J`; J w.r.t. z)."""
-    n = z0s.shape[0]
-    ctxs = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + jnp.shape(x)), (param, data))
-    return run_pool(solver, _fn(spec), z0s, ctxs, workers, limits=limits,
-                    keep_jacobian=True)
 
 
 @jax.jit
@@ -254,161 +246,53 @@ def _r2(model, data, mask) -> float:
     return r_squared(model, data.force, data.weight, mask)
 
 
-def _check_options(n_starts, max_steps, optimiser, rtol):
-    for name, v, lo in (("n_starts", n_starts, 1), ("max_steps", max_steps, 1)):
-        if v is not None and (not isinstance(v, int | np.integer) or v < lo):
-            raise ValueError(f"{name} must be an integer >= {lo}; got {plain(v)}")
-    if optimiser not in OPTIMISERS:
-        raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
-    if not (isinstance(rtol, int | float) and 0 < rtol < 1):
-        raise ValueError(f"rtol must be a number in (0, 1); got {plain(rtol)}")
-
-
-def _options(curves, *, radius, profile, model, rheology, spring_constant, initial, fixed,
-             bounds, contact_point, force_offset, n_starts, max_samples, cells, max_steps,
-             optimiser, rtol, seed, local_rounds, indentation_range=None, segments=None):
-    """Checked options of :func:`fit` (`ValueError` naming the argument): the curves as a
-    list, the options of every step of the chain of models, and the chain (rheologies)."""
-    if isinstance(curves, Curve):
-        curves = [curves]
-    curves = list(curves)
-    if not curves or not all(isinstance(c, Curve) for c in curves):
-        raise ValueError("curves: give a Curve or a non-empty list of Curve objects")
-    n_starts = DEFAULT_STARTS if n_starts is None else n_starts
-    _check_options(n_starts, max_steps, optimiser, rtol)
-    if not (isinstance(local_rounds, int | np.integer) and local_rounds >= 0):
-        raise ValueError(f"local_rounds must be an integer >= 0; got {plain(local_rounds)}")
-    contact_point = contact_point_mode(contact_point, curves)
-    indentation_range = check_indentation_range(indentation_range)
-    segments = check_segments(segments, model)
-    if profile is None:
-        if radius is None or not (isinstance(radius, int | float) and math.isfinite(radius)
-                                  and radius > 0):
-            raise ValueError(f"radius must be finite and > 0 [m]; got {plain(radius)}")
-        profile = jc.Parabola(float(radius))
-    elif radius is not None:
-        raise ValueError("give either radius or profile, not both")
-    if spring_constant is not None:
-        ks = np.atleast_1d(np.asarray(spring_constant, dtype=float))
-        if not np.all(np.isfinite(ks) & (ks > 0)):
-            raise ValueError(f"spring_constant must be finite and > 0 [N/m]; got "
-                             f"{plain(spring_constant)}")
-    if rheology == "auto":
-        chain = ["standard", "prony:2", "prony:3"]
-    else:
-        spec0 = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells)
-        chain = ["standard"] + [f"prony:{k}" for k in range(2, spec0.arms + 1)] \
-            if spec0.rheology == "prony" and spec0.arms > 1 else [rheology]
-    opts = dict(radius=radius, profile=profile, model=model, spring_constant=spring_constant,
-                initial=initial, fixed=fixed, bounds=bounds, contact_point=contact_point,
-                force_offset=force_offset, n_starts=n_starts, max_samples=max_samples,
-                cells=cells, max_steps=max_steps, optimiser=optimiser, rtol=rtol, seed=seed,
-                local_rounds=int(local_rounds), indentation_range=indentation_range,
-                segments=segments)
-    return curves, opts, chain
-
-
-def fit(
-    curves: Curve | Sequence[Curve],
-    *,
-    radius: float | None = None,
-    profile: jc.AbstractProfile | None = None,
-    model: str = "relaxed",
-    rheology: str = "standard",
-    spring_constant: float | Sequence[float] | None = None,
-    initial: Mapping[str, float] | None = None,
-    fixed: Mapping[str, float] | None = None,
-    bounds: Mapping[str, tuple[float, float]] | None = None,
-    contact_point: str | None = None,
-    force_offset: bool = False,
-    n_starts: int | None = None,
-    max_samples: int | None = None,
-    indentation_range: tuple[float, float] | None = None,
-    segments: Sequence[str] | str | None = None,
-    cells: int = 32,
-    max_steps: int = 200,
-    progress: bool = True,
-    optimiser: str = "lm",
-    rtol: float = 1e-8,
-    seed: int = 0,
-    local_rounds: int = DEFAULT_LOCAL_ROUNDS,
-) -> FitResult:
+@keyword_signature(FitOptions)
+def fit(curves: Curve | Sequence[Curve], *, options: FitOptions | None = None,
+        **keywords) -> FitResult:
     r"""Identify the rheology, $\Delta\gamma$ (and the contact point) from one or more curves.
 
     **Arguments:**
 
-    - `curves`: a :class:`Curve` or a list of them (different speeds and holds share the
-      material parameters). Indentation [m] positive into the sample, 0 at the contact
-      point; force [N] compressive positive, adhesive negative.
-    - `radius`: parabolic indenter radius $R$ [m], or any jaxcontact `profile`.
-    - `model`: "relaxed" (default, as ``jaxcontact fit --model``: :func:`jaxcontact.retract`
-      on the retract after a hold long enough to relax; a `ModelValidityWarning` says when
-      the curves have no such hold) or "history" (:func:`jaxcontact.simulate`: approach,
-      hold, retract).
-    - `rheology`: "standard" ($G_0, G_1, \eta_1$), "prony:N" ($G_\infty$, $G_k$, $\tau_k$;
-      fitted nested from the standard model) or "auto" (standard, prony:2, prony:3; the
-      smallest BIC is kept).
-    - `spring_constant`: cantilever stiffness [N/m] (one, or one per curve): history model
-      under :class:`jaxcontact.CompliantLoading`. `None`: displacement control.
-    - `initial`, `fixed`: values by name (``"G0"`` or ``"G0_Pa"``); `initial` sets the first
-      start, `fixed` holds a parameter.
-    - `bounds`: `{name: (lower, upper)}` natural units; replaces the default bounds of that
-      parameter (:func:`fitting._start.default_bounds`).
-    - `contact_point` (the vocabulary of ``jaxcontact fit --contact-point``,
-      :data:`fitting._prepare.CONTACT_POINT`): "fit" (the indentation offset $\delta$ [m]
-      is fitted, started at the detected contact), "detect" (the contact point the loader
-      detected is used as it is), "none" (the curves are indentation already, 0 at
-      contact; used as they are), or `None`: "fit" when a curve's contact point was
-      detected by a loader, else as it is. "fixed" (older spelling) means "detect".
-    - `force_offset`: also fit a force offset $F_0$ [N] (a baseline error).
-    - `n_starts`: starts of the global search (default :data:`DEFAULT_STARTS`).
-    - `max_samples`: largest number of samples per curve (default by model:
-      :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`).
-    - `indentation_range`: ``(low, high)`` [m]: only samples with indentation in it are
-      fitted (nanite's ``range_x``); the model still runs through the whole history.
-    - `segments`: the segments fitted, e.g. ``("approach",)`` or ``"approach,retract"``
-      (`None` or ``"all"``: every segment the model uses). The history model needs the
-      approach; the relaxed model (the retract-only fit of any rheology) the retract. An
-      approach-only fit determines the moduli and nothing of $\Delta\gamma$ (the model's
-      approach is non-adhesive, the JKR limit): `work_of_adhesion` is then held at its
-      `fixed` value, or at its start value, and the result's `warnings` say so.
-    - `cells`: foundation grid of the history model. `max_steps`: iterations per start.
-    - `progress`: print the stages to stderr. `optimiser`: "lm" (Levenberg–Marquardt) or
-      "lbfgs" (optax L-BFGS). `rtol`:
-      convergence tolerance. `seed`: of the Latin hypercube.
-    - `local_rounds`: at most this many further rounds of as many starts around the best
-      end points (:func:`fitting._start.local_starts`; they reuse the compiled search, a
-      round without progress is followed by a wider one, and they stop when the widest
-      does not lower $\chi^2$), default
-      :data:`DEFAULT_LOCAL_ROUNDS`; 0: the global search alone.
+    - `curves`: a :class:`Curve` or a list of them, fitted jointly: different speeds and
+      holds share the material parameters (one problem). Indentation [m] positive into
+      the sample, 0 at the contact point; force [N] compressive positive, adhesive
+      negative.
+    - `options`: a :class:`fitting.FitOptions`, or its fields as keywords (`radius`,
+      `profile`, `model`, `rheology`, `spring_constant`, `initial`, `fixed`, `bounds`,
+      `contact_point`, `force_offset`, `n_starts`, `max_samples`, `indentation_range`,
+      `segments`, `cells`, `max_steps`, `optimiser`, `rtol`, `seed`, `local_rounds`,
+      `progress`; meanings, units and defaults there). A keyword given beside `options`
+      must agree with it.
+
+    How it relates to :func:`fitting.fit_each`: both run one pipeline (:func:`identify`:
+    the same preparation, starts, global search, local rounds and finish); `fit` is its
+    case of one problem, made of all `curves` together, its starts on at most 8 lanes of
+    the pool (spread over the local devices, as :func:`solve_batch` does; the results do
+    not depend on the split, up to round-off).
+    :func:`fitting.fit_each` makes one problem of each curve instead (a curve fitted there
+    ends where `fit` of that curve alone ends). Only `fit` offers ``rheology="auto"``
+    (standard, prony:2 and prony:3 fitted nested; the smallest BIC is kept, all three in
+    ``result.model_selection``) and one spring constant per curve.
 
     **Returns:** a :class:`FitResult` (print it for a summary). Parameters the data do not
     determine, or that sit at a bound, are named in its `warnings` and `status` (also
     issued as :class:`IdentifiabilityWarning`).
 
-    **Raises:** `ValueError` naming the argument for bad options or data.
+    **Raises:** `ValueError` naming the argument for bad options or data; `TypeError` for
+    an unknown keyword.
     """
-    show = Progress(progress, "fit").message  # one timestamped line per call
-    curves, opts, chain = _options(
-        curves, radius=radius, profile=profile, model=model, rheology=rheology,
-        spring_constant=spring_constant, initial=initial, fixed=fixed, bounds=bounds,
-        contact_point=contact_point, force_offset=force_offset, n_starts=n_starts,
-        max_samples=max_samples, cells=cells, max_steps=max_steps, optimiser=optimiser,
-        rtol=rtol, seed=seed, local_rounds=local_rounds, indentation_range=indentation_range,
-        segments=segments)
-    results: list[FitResult] = []
-    for rh in chain:
-        previous = results[-1] if results else None
-        quiet = rh != chain[-1] and rheology != "auto"
-        with warnings.catch_warnings():
-            if quiet:  # a step of the nested chain: its warnings are not the result's
-                warnings.simplefilter("ignore", IdentifiabilityWarning)
-                warnings.simplefilter("ignore", ModelValidityWarning)
-            results.append(_fit_one(curves, rheology=rh, previous=previous, show=show,
-                                    warn=not quiet and rheology != "auto", **opts))
-    if len(results) == 1:
-        return results[0]
-    if rheology != "auto":
+    if isinstance(curves, Curve):
+        curves = [curves]
+    curves = list(curves)
+    if not curves or not all(isinstance(c, Curve) for c in curves):
+        raise ValueError("curves: give a Curve or a non-empty list of Curve objects")
+    (keywords,) = split_keywords(keywords, FitOptions, where="fit")
+    options = FitOptions.merge(options, keywords, where="fit")
+    show = Progress(options.progress, "fit").message  # one timestamped line per call
+    auto = options.rheology == "auto"
+    out = identify([curves], options, SINGLE, show=show, warn=not auto, keep_steps=True)
+    results = out.steps[0]
+    if not auto:
         return results[-1]
     choices = [ModelChoice(rheology=r.rheology, chi2=r.chi2, k=r.n_free, n=r.n_data,
                            aic=r.aic, bic=r.bic) for r in results]
@@ -438,28 +322,33 @@ class _Problem:
     notes: list = dataclasses.field(default_factory=list)
 
 
-def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixed, bounds,
-             contact_point, force_offset, n_starts, max_samples, cells, seed, previous,
-             indentation_range=None, host=False, segments=None, **_) -> _Problem:
-    spec = make_spec(model, rheology, compliant=spring_constant is not None, cells=cells,
-                     contact_offset=contact_point == "fit", force_offset=force_offset)
+def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
+             previous: FitResult | None) -> _Problem:
+    """The problem of `curves` (fitted jointly) for `rheology` (a step of
+    ``options.chain()``; `previous`: the step before's result, whose optimum adds nested
+    starts), with the contact point "fit" or "fixed"; prepared in numpy."""
+    o = options
+    profile = o.probe
+    spec = make_spec(o.model, rheology, compliant=o.spring_constant is not None,
+                     cells=o.cells, contact_offset=contact_point == "fit",
+                     force_offset=o.force_offset)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
-    curves = select_fit_segments(curves, segments)
+    curves = select_fit_segments(curves, o.segments)
     check_contact_signal(curves, spec)
-    data = prepare_curves(curves, spec, profile=profile, spring_constant=spring_constant,
-                          max_samples=max_samples, indentation_range=indentation_range,
-                          host=host)
+    data = prepare_curves(curves, spec, profile=profile, spring_constant=o.spring_constant,
+                          max_samples=o.max_samples, indentation_range=o.indentation_range,
+                          host=True)
     scales = data_scales(curves, spec, profile)
     guess = initial_guess(curves, spec, profile, scales)
-    guess.update(normalise_names(initial, names, "initial"))
-    fixed, notes = _approach_only(data, guess, normalise_names(fixed, names, "fixed"))
+    guess.update(normalise_names(o.initial, names, "initial"))
+    fixed, notes = _approach_only(data, guess, normalise_names(o.fixed, names, "fixed"))
     bnds = default_bounds(spec, scales)
-    bnds.update(normalise_names(bounds, names, "bounds"))
+    bnds.update(normalise_names(o.bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
                                   scales={"contact_offset": scales.depth,
                                           "force_offset": scales.force_range})
-    starts = [guess] + search_starts(spec, scales, n_starts - 1, seed=seed)
+    starts = [guess] + search_starts(spec, scales, o.n_starts - 1, seed=o.seed)
     if previous is not None:
         starts += nested_starts(spec, previous.spec, previous.as_dict(), scales)
     zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
@@ -528,39 +417,176 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
     return outs
 
 
-def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
-    timings = {}
-    t_start = time.perf_counter()
-    pb = _problem(curves, rheology=rheology, previous=previous, **opts)
-    show(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} curve(s), "
-         f"{pb.data.n_samples} samples (standing for {pb.data.n_measured} measured), "
-         f"{len(pb.param.free)} free parameter(s), {len(pb.zs)} start(s)")
-    timings["prepare"] = time.perf_counter() - t_start
+@dataclasses.dataclass
+class Identified:
+    """The outcome of :func:`identify`, per group of curves (in order): `steps` (the
+    :class:`FitResult` of each step of the chain of models reached, or with `keep_steps`
+    false only the last one), `errors` (`None`, or why the group failed: with `isolate`),
+    and for all: `spec` (the model of the last step run; `None` if no group was prepared)
+    and `timings` [s] (prepare, optimise, finish: summed over the steps and chunks)."""
 
-    t0 = time.perf_counter()
-    # the forward model at the optimum (`_finish`) compiles while the search runs
-    model_at = _compile_in_background(_model_at, pb.spec, pb.param,
-                                      jnp.asarray(pb.param.internal_host(pb.zs[0])), pb.data)
-    max_steps = int(opts["max_steps"])
-    solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8, max_steps)
+    steps: list[list[FitResult]]
+    errors: list[str | None]
+    spec: ModelSpec | None
+    timings: dict
+
+    def final(self, g: int) -> FitResult | None:
+        """Group `g`'s result of the chain's last model (`None` if it failed before)."""
+        return self.steps[g][-1] if self.errors[g] is None and self.steps[g] else None
+
+
+def _message(exc: BaseException) -> str:
+    text = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
+
+
+def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: BatchOptions, *,
+             show=None, warn: bool = True, isolate: bool = False, keep_steps: bool = False,
+             progress=None) -> Identified:
+    r"""The identification pipeline of :func:`fit` and :func:`fitting.fit_each`: one
+    problem per group of curves (the curves of a group share the parameters), for each
+    rheology of ``options.chain()`` in turn (each problem started also from its own
+    previous optimum):
+
+    1. **Prepare** each problem (:func:`_problem`: data, parameterisation, starts), in
+       numpy; the contact-point mode is decided once over all curves
+       (:func:`fitting._prepare.contact_point_mode`).
+    2. **Search** the problems in chunks of ``batch.chunk``, padded to one shape (samples,
+       starts, and the last chunk to the chunk size) so that one compilation serves all:
+       the global search of all starts of the chunk, then the local rounds
+       (:func:`_local_search`), each one call of :func:`solve_batch` on
+       ``batch.lanes(...)`` lanes over ``batch.devices``.
+    3. **Finish** each problem's best start (:func:`_finish`: uncertainty, $R^2$,
+       warnings).
+
+    `show(message)`: the stages of each problem (`None`: silent); `progress(stage, done)`:
+    after each chunk. `warn`: issue the last model's warnings (the chain's earlier steps
+    are always quiet). `isolate`: a problem that cannot be prepared or finished is an
+    error of its group (else the exception propagates). Returns :class:`Identified`.
+    """
+    groups = [list(g) for g in groups]
+    n = len(groups)
+    contact_point = contact_point_mode(options.contact_point, [c for g in groups for c in g])
+    chain = options.chain()
+    steps: list[list[FitResult]] = [[] for _ in groups]
+    errors: list[str | None] = [None] * n
+    timings = {"prepare": 0.0, "optimise": 0.0, "finish": 0.0}
+    caught = (ValueError, ArithmeticError) if isolate else ()
+    failed = (*caught, np.linalg.LinAlgError) if isolate else ()
+    say = show if show is not None else (lambda _m: None)
+    spec = None
+    for rh in chain:
+        last = rh == chain[-1]
+        problems, started, prepared = {}, {}, {}
+        for g in range(n):
+            if errors[g] is not None:
+                continue
+            started[g] = t0 = time.perf_counter()
+            try:
+                problems[g] = _problem(groups[g], options, rheology=rh,
+                                       contact_point=contact_point,
+                                       previous=steps[g][-1] if steps[g] else None)
+            except caught as exc:
+                errors[g] = _message(exc)
+                continue
+            pb = problems[g]
+            say(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} "
+                f"curve(s), {pb.data.n_samples} samples (standing for {pb.data.n_measured} "
+                f"measured), {len(pb.param.free)} free parameter(s), {len(pb.zs)} start(s)")
+            prepared[g] = time.perf_counter() - t0
+            timings["prepare"] += prepared[g]
+        if not problems:
+            break
+        idx = list(problems)
+        spec = problems[idx[0]].spec
+        _pad(problems)
+        pb0 = problems[idx[0]]  # the finish's forward model compiles during the search
+        model_at = _compile_in_background(
+            _model_at, pb0.spec, pb0.param, jnp.asarray(pb0.param.internal_host(pb0.zs[0])),
+            pb0.data)
+        size = min(batch.chunk, len(idx))
+        n_z = len(pb0.zs)
+        for c0 in range(0, len(idx), size):
+            part = idx[c0:c0 + size]
+            t0 = time.perf_counter()
+            outs = _search_chunk([problems[g] for g in part], size, options, batch,
+                                 lanes=batch.lanes(size, n_z), show=show)
+            model_at.join()
+            t_search = time.perf_counter() - t0
+            timings["optimise"] += t_search
+            t0 = time.perf_counter()
+            for g, out in zip(part, outs, strict=True):
+                pb = problems[g]
+                stage = {"prepare": prepared[g], "optimise": t_search}  # the chunk's
+                try:
+                    with warnings.catch_warnings():
+                        if not last:  # a step of the chain: its warnings are not the result's
+                            warnings.simplefilter("ignore", IdentifiabilityWarning)
+                            warnings.simplefilter("ignore", ModelValidityWarning)
+                        res = _finish(pb, out, options, show=say, warn=warn and last,
+                                      timings=stage, t_start=started[g])
+                except failed as exc:
+                    errors[g] = _message(exc)
+                    continue
+                steps[g] = steps[g] + [res] if keep_steps else [res]
+            timings["finish"] += time.perf_counter() - t0
+            if progress is not None:
+                progress(rheology_name(spec), min(c0 + size, len(idx)))
+    for g in range(n):  # a group that failed at a later step of the chain has no result
+        if errors[g] is not None:
+            steps[g] = []
+    return Identified(steps=steps, errors=errors, spec=spec, timings=timings)
+
+
+def _pad(problems: dict) -> None:
+    """Every problem to one shape, in place: its samples padded to the longest problem's
+    (:func:`fitting.stack_batches`) and its starts to the most starts (the first repeated)."""
+    idx = list(problems)
+    length = max(problems[g].data.ts.shape[1] for g in idx)
+    n_z = max(len(problems[g].zs) for g in idx)
+    for g in idx:
+        pb = problems[g]
+        data = pb.data if pb.data.ts.shape[1] == length else \
+            stack_batches([pb.data], length, host=True)
+        zs = np.concatenate([pb.zs, np.repeat(pb.zs[:1], n_z - len(pb.zs), axis=0)])
+        problems[g] = dataclasses.replace(pb, data=data, zs=zs)
+
+
+def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
+                  batch: BatchOptions, *, lanes: int, show=None) -> list[Solution]:
+    """The global search and the local rounds of equally shaped `problems` in one compiled
+    pool (:func:`solve_batch`), padded to `size` problems (the last one repeated; its
+    copies are dropped): the host :class:`Solution` of every start of each problem."""
+    fill = problems + [problems[-1]] * (size - len(problems))
+    n_z = len(fill[0].zs)
+    params = _stack([pb.param for pb in fill], n_z)
+    datas = _stack([pb.data for pb in fill], n_z)
+    spec = fill[0].spec
 
     def run(starts, limits):
-        return [jax.device_get(_search(pb.spec, pb.param, pb.data, jnp.asarray(zs),
-                                       jnp.asarray(lim), solver, min(8, len(zs))))
-                for zs, lim in zip(starts, limits, strict=True)]
+        out = jax.device_get(solve_batch(
+            spec, params, datas, np.concatenate(starts), limits=np.concatenate(limits),
+            workers=lanes, rtol=options.rtol, max_steps=options.max_steps,
+            optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True))
+        return [out.take(np.arange(j * n_z, (j + 1) * n_z)) for j in range(len(starts))]
 
-    out = run([pb.zs], [np.full(len(pb.zs), max_steps, dtype=np.int32)])
-    out = _local_search([pb.param], out, run, n=len(pb.zs),
-                        local_rounds=opts["local_rounds"], seed=opts["seed"],
-                        max_steps=max_steps, show=show)[0]
-    model_at.join()
-    timings["optimise"] = time.perf_counter() - t0
-    return _finish(pb, curves, opts["profile"], out, opts["optimiser"], show=show,
-                   warn=warn, timings=timings, t_start=t_start, max_steps=max_steps)
+    outs = run([pb.zs for pb in fill], [np.full(n_z, options.max_steps, np.int32)] * size)
+    # a problem whose rounds are done is not run
+    outs = _local_search([pb.param for pb in fill], outs, run, n=n_z,
+                         local_rounds=options.local_rounds, seed=options.seed,
+                         max_steps=options.max_steps, show=show)
+    return outs[:len(problems)]
 
 
-def _finish(pb: _Problem, curves, profile, out: Solution, optimiser, *, show, warn, timings,
-            t_start, max_steps=None) -> FitResult:
+def _stack(trees, repeat: int):
+    """One pytree with a leading problem axis: each of `trees` repeated `repeat` times."""
+    host = [jax.device_get(t) for t in trees]
+    return jax.device_put(jax.tree.map(lambda *x: np.repeat(np.stack(x), repeat, axis=0),
+                                       *host))
+
+
+def _finish(pb: _Problem, out: Solution, options: FitOptions, *, show, warn, timings,
+            t_start) -> FitResult:
     """The :class:`FitResult` of problem `pb` from the search's :class:`Solution` `out`
     (every start; its `r`, `J` if kept, J with respect to z)."""
     spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
@@ -599,7 +625,7 @@ def _finish(pb: _Problem, curves, profile, out: Solution, optimiser, *, show, wa
     n = data.n_measured
     chi2 = unc.chi2
     ll = n * math.log(max(chi2, 1e-300) / n)
-    curves = pb.curves or curves  # as fitted: restricted to the chosen segments
+    curves, profile = pb.curves, options.probe  # as fitted: the chosen segments
     msgs = list(unc.warnings)
     msgs += _validity_warnings(spec, curves, profile, radius_model, valid)
     if warn:
@@ -625,10 +651,10 @@ def _finish(pb: _Problem, curves, profile, out: Solution, optimiser, *, show, wa
         radius=float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None,
         model_solution=sol, model_force=model_force,
         fitted_force=np.asarray(fitted_force), in_contact=in_contact,
-        parameterisation=param, optimiser=optimiser, start_steps=steps_all,
+        parameterisation=param, optimiser=options.optimiser, start_steps=steps_all,
         warnings=msgs, timings=timings,
     )
-    flagged = assess(result, max_steps=max_steps)  # quality per segment, flags, convergence
+    flagged = assess(result, max_steps=options.max_steps)  # quality per segment, flags, convergence
     if warn:
         for m in flagged:
             warn_at_caller(m, ModelValidityWarning)

@@ -109,3 +109,13 @@ def test_the_walk_sees_lazy_imports(tmp_path):
     src.write_text("def f():\n    import fitting._optimise\n    from . import other\n")
     deps = _imports("jaxcontact.m", src, {"fitting", "fitting._optimise", "jaxcontact.other"})
     assert deps == {"fitting._optimise", "jaxcontact.other"}
+
+
+def test_fit_each_reaches_the_shared_pipeline_through_public_internal_names():
+    # `fit` and `fit_each` run one pipeline (fitting._optimise.identify); the batched
+    # front end imports no private helper of the modules behind it (it imported six)
+    tree = ast.parse((ROOT / "fitting" / "_batch.py").read_text())
+    private = [(node.module, a.name) for node in ast.walk(tree)
+               if isinstance(node, ast.ImportFrom) and node.level == 1
+               for a in node.names if a.name.startswith("_")]
+    assert private == []

@@ -85,6 +85,29 @@ def test_each_curve_ends_where_it_ends_alone(curves, each):
         np.testing.assert_allclose(got.stderr, alone.stderr, rtol=1e-4)
 
 
+def test_fit_is_the_one_curve_case_of_fit_each(curves):
+    # one pipeline: `fit` of a curve, `fit` of the same options as one FitOptions object,
+    # and `fit_each` of that curve alone (one problem, one chunk: the same compiled pool)
+    # (the global search alone: the suite's time; the rounds are the same code for both)
+    c = curves[1]
+    alone = _quiet(fitting.fit, c, radius=R, n_starts=STARTS, local_rounds=0,
+                   progress=False)
+    options = fitting.FitOptions(radius=R, n_starts=STARTS, local_rounds=0, progress=False)
+    same = _quiet(fitting.fit, c, options=options)
+    assert same.chi2 == alone.chi2
+    np.testing.assert_array_equal(same.values, alone.values)
+    np.testing.assert_array_equal(same.stderr, alone.stderr)
+    one = _quiet(fitting.fit_each, [c], options=options)
+    got = one.results[0]
+    assert got.converged and got.chi2 == pytest.approx(alone.chi2, rel=1e-9)
+    np.testing.assert_allclose(got.values, alone.values, rtol=1e-7)
+    np.testing.assert_allclose(got.stderr, alone.stderr, rtol=1e-6)
+    assert got.status == alone.status and got.n_free == alone.n_free
+    # the model the fit ends at describes the curve it was made from (an independent check)
+    for name, true in POINTS[1].items():
+        assert abs(got[name] - true) < 4 * got.stderr[got.names.index(name)], name
+
+
 def test_each_recovers_every_point_within_its_errors(each):
     # an independent check: the parameters the curves were made with
     for k, p in zip((0, 2, 4), POINTS, strict=True):

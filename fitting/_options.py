@@ -1,0 +1,397 @@
+r"""The options of an identification as one validated, frozen object (:class:`FitOptions`),
+and the options that only the batched :func:`fitting.fit_each` understands
+(:class:`BatchOptions`).
+
+:func:`fitting.fit` and :func:`fitting.fit_each` take either an options object
+(``options=FitOptions(...)``) or the same fields as keywords (``fit(curve, radius=...)``):
+both become one :class:`FitOptions` (:meth:`FitOptions.merge`), checked once, when it is
+made, with a `ValueError` naming the option and its allowed values. The rest of the
+pipeline (:mod:`fitting._pipeline`) reads the checked object only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import inspect
+import math
+import types
+from collections.abc import Callable, Mapping, Sequence
+
+import jax
+import numpy as np
+
+import jaxcontact as jc
+from jaxcontact._validate import plain
+
+from ._least_squares import LBFGS, AbstractLeastSquaresSolver, LevenbergMarquardt
+from ._prepare import CONTACT_POINT, check_indentation_range, check_segments
+from ._spec import make_spec
+
+__all__ = ["FitOptions", "BatchOptions", "OPTIMISERS", "DEFAULT_STARTS",
+           "DEFAULT_LOCAL_ROUNDS", "make_solver"]
+
+#: Default number of starts of the global search.
+DEFAULT_STARTS = 16
+
+#: Default largest number of local rounds after the global search.
+DEFAULT_LOCAL_ROUNDS = 3
+
+#: Default iterations per start.
+DEFAULT_MAX_STEPS = 200
+
+#: The optimisers by name: each makes its least-squares solver from the tolerances.
+_SOLVERS: dict[str, Callable[..., AbstractLeastSquaresSolver]] = {
+    "lm": lambda rtol, atol, gtol, max_steps: LevenbergMarquardt(
+        rtol=rtol, atol=atol, max_steps=max_steps),
+    "lbfgs": lambda rtol, atol, gtol, max_steps: LBFGS(
+        rtol=rtol, gtol=gtol, max_steps=max_steps),
+}
+
+#: The optimisers of :func:`fitting.fit` and :func:`fitting.solve`.
+OPTIMISERS = tuple(_SOLVERS)
+
+#: The rheologies that ``rheology="auto"`` compares (nested; the smallest BIC is kept).
+AUTO_CHAIN = ("standard", "prony:2", "prony:3")
+
+
+def make_solver(optimiser: str, *, rtol: float = 1e-8, atol: float = 1e-9,
+                gtol: float = 1e-8, max_steps: int = DEFAULT_MAX_STEPS
+                ) -> AbstractLeastSquaresSolver:
+    """The least-squares solver of `optimiser` (one of :data:`OPTIMISERS`); `ValueError`
+    naming the allowed ones."""
+    if optimiser not in _SOLVERS:
+        raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
+    return _SOLVERS[optimiser](rtol, atol, gtol, max_steps)
+
+
+def _integer(name: str, value, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
+        raise ValueError(f"{name} must be an integer >= {lo}; got {plain(value)}")
+    return int(value)
+
+
+def _mapping(name: str, value) -> Mapping | None:
+    """A read-only copy of `value` (None stays None); the names are checked against the
+    model's parameters when the problem is made (they depend on the model and the
+    contact point)."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name} must be a mapping {{parameter name: value}} or None; got "
+                         f"{plain(value)}")
+    return types.MappingProxyType(dict(value))
+
+
+def _same(a, b) -> bool:
+    """`a` and `b` hold the same values (arrays, profiles and mappings compared by their
+    leaves)."""
+    if a is b:
+        return True
+    a, b = (dict(x) if isinstance(x, Mapping) else x for x in (a, b))
+    la, ta = jax.tree.flatten(a)
+    lb, tb = jax.tree.flatten(b)
+    if ta != tb:
+        return False
+    try:
+        return all(np.array_equal(np.asarray(x), np.asarray(y))
+                   for x, y in zip(la, lb, strict=True))
+    except (TypeError, ValueError):
+        return False
+
+
+class _Options:
+    """What both option classes share: made from keywords or merged with them."""
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The option names (the keywords of the functions that take them)."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    def replace(self, **changes):
+        """A copy with `changes` (checked like a new object)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def merge(cls, options, keywords: Mapping, *, where: str):
+        """The options of a call of `where` given `options` (an object of this class, or
+        None) and the same options as `keywords`: a keyword that agrees with `options`
+        is accepted, one that differs is a `ValueError` naming it (give each option in
+        one place)."""
+        if options is None:
+            return cls(**keywords)
+        if not isinstance(options, cls):
+            raise TypeError(f"{where}: options must be a fitting.{cls.__name__}; got "
+                            f"{type(options).__name__}")
+        if not keywords:
+            return options
+        merged = options.replace(**keywords)
+        clash = [k for k in keywords if not _same(getattr(merged, k), getattr(options, k))]
+        if clash:
+            raise ValueError(
+                f"{where}: {', '.join(clash)} given both in options ("
+                + ", ".join(f"{k}={plain(getattr(options, k))}" for k in clash)
+                + ") and as keywords (" + ", ".join(f"{k}={plain(keywords[k])}" for k in clash)
+                + "); give each option in one place, e.g. options.replace("
+                + ", ".join(f"{k}=..." for k in clash) + ")")
+        return merged
+
+
+def split_keywords(keywords: Mapping, *classes, where: str) -> list[dict]:
+    """`keywords` split by the option class that has each (in the order of `classes`);
+    `TypeError` naming an unknown one and the known ones."""
+    parts = [{} for _ in classes]
+    for k, v in keywords.items():
+        for part, cls in zip(parts, classes, strict=True):
+            if k in cls.names():
+                part[k] = v
+                break
+        else:
+            known = [n for cls in classes for n in cls.names()]
+            raise TypeError(f"{where}() got an unexpected keyword argument {k!r}; the options "
+                            f"are {', '.join(known)} (and options=)")
+    return parts
+
+
+def keyword_signature(*classes):
+    """A decorator giving `fn(curves, *, options=None, **keywords)` the signature of its
+    keywords (the fields of `classes`, with their defaults), so that `help()` and
+    `inspect` show them."""
+
+    def decorate(fn):
+        sig = inspect.signature(fn)
+        head = [p for p in sig.parameters.values() if p.kind is not p.VAR_KEYWORD]
+        fields = [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY,
+                                    default=f.default, annotation=f.type)
+                  for cls in classes for f in dataclasses.fields(cls)]
+        fn.__signature__ = sig.replace(parameters=head + fields)
+        return fn
+
+    return decorate
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class FitOptions(_Options):
+    r"""The options of :func:`fitting.fit` and :func:`fitting.fit_each`: one checked, frozen
+    object (keywords only). Each field is also a keyword of both functions.
+
+    Checked when made: a bad value is a `ValueError` naming the option and its allowed
+    values (the parameter names in `initial`, `fixed` and `bounds` are checked against
+    the model's when a fit starts: they depend on the rheology and the contact point).
+    :meth:`replace` makes a changed copy (checked again).
+
+    **Fields** (SI units; indentation positive into the sample, compressive force
+    positive, adhesion negative):
+
+    - `radius`: parabolic indenter radius $R$ [m], finite and > 0 (default `None`); or
+    - `profile`: any :class:`jaxcontact.AbstractProfile` (default `None`). Give exactly
+      one of `radius` and `profile` (:attr:`probe` is the profile used).
+    - `model`: "relaxed" (default: :func:`jaxcontact.retract` on the retract after a hold
+      long enough to relax; a `ModelValidityWarning` says when the curves have no such
+      hold) or "history" (:func:`jaxcontact.simulate`: approach, hold, retract).
+    - `rheology`: "standard" (default; $G_0, G_1, \eta_1$ [Pa, Pa, Pa s]), "elastic",
+      "prony:N" with N in [1, 8] ($G_\infty$, $G_k$ [Pa], $\tau_k$ [s]; fitted nested from
+      the standard model, :meth:`chain`) or "auto" (:func:`fitting.fit` only: standard,
+      prony:2, prony:3, the smallest BIC kept).
+    - `spring_constant`: cantilever stiffness [N/m], finite and > 0: one value, or (for
+      :func:`fitting.fit` of several curves) one per curve; needs ``model="history"``
+      (:class:`jaxcontact.CompliantLoading`). Default `None`: displacement control.
+    - `initial`, `fixed`: `{name: value}` (``"G0"`` or ``"G0_Pa"``; Young's moduli ``E0``,
+      ``E1``, ``E``, ``E_inf``, ``E_k`` as three times the shear modulus), natural units;
+      `initial` sets the first start, `fixed` holds a parameter. Default `None`.
+    - `bounds`: `{name: (lower, upper)}`, natural units; replaces the default bounds of
+      that parameter (:func:`fitting.default_bounds`). Default `None`.
+    - `contact_point`: "fit" (the indentation offset $\delta$ [m] is fitted, started at
+      the detected contact), "detect" (the detected contact point is used as it is),
+      "none" (the curves are indentation already, 0 at contact), "fixed" (older spelling
+      of "detect"), or `None` (default): "fit" when a loader detected a curve's contact
+      point, else as it is (:data:`fitting._prepare.CONTACT_POINT`).
+    - `force_offset`: also fit a force offset $F_0$ [N] (a baseline error). Default False.
+    - `n_starts`: starts of the global search, an integer >= 1 (default
+      :data:`DEFAULT_STARTS`; `None` is the default).
+    - `max_samples`: largest number of samples per curve, an integer >= 4 (default `None`:
+      by model, :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`); subsampled without
+      averaging.
+    - `indentation_range`: ``(low, high)`` [m], finite, low < high: only samples with
+      indentation in it are fitted (nanite's ``range_x``); the model still runs through
+      the whole history. Default `None`: every sample.
+    - `segments`: the segments fitted, names from ("approach", "hold", "retract") as a
+      sequence or a comma-separated string (default `None` or "all": every segment the
+      model uses). The history model needs the approach, the relaxed model the retract.
+      An approach-only fit determines the moduli and nothing of $\Delta\gamma$:
+      `work_of_adhesion` is then held (its `fixed` value, or its start value) and the
+      result's `warnings` say so.
+    - `cells`: foundation grid of the history model, an integer >= 2 (default 32).
+    - `max_steps`: iterations per start, an integer >= 1 (default 200; `None` is the
+      default).
+    - `optimiser`: "lm" (Levenberg–Marquardt, default) or "lbfgs" (L-BFGS), see
+      :data:`OPTIMISERS` and :meth:`solver`.
+    - `rtol`: convergence tolerance (relative change of $\chi^2$, and for "lm" of the
+      step), a number in (0, 1) (default 1e-8).
+    - `seed`: of the Latin hypercube of starts, an integer >= 0 (default 0).
+    - `local_rounds`: at most this many further rounds of `n_starts` starts around the
+      best end points (:func:`fitting._start.local_starts`: a round without progress is
+      followed by a wider one; they stop when the widest does not lower $\chi^2$), an
+      integer >= 0 (default :data:`DEFAULT_LOCAL_ROUNDS`; 0: the global search alone).
+    - `progress`: print the stages to stderr (default True).
+    """
+
+    radius: float | None = None
+    profile: jc.AbstractProfile | None = None
+    model: str = "relaxed"
+    rheology: str = "standard"
+    spring_constant: float | tuple[float, ...] | None = None
+    initial: Mapping[str, float] | None = None
+    fixed: Mapping[str, float] | None = None
+    bounds: Mapping[str, tuple[float, float]] | None = None
+    contact_point: str | None = None
+    force_offset: bool = False
+    n_starts: int = DEFAULT_STARTS
+    max_samples: int | None = None
+    indentation_range: tuple[float, float] | None = None
+    segments: tuple[str, ...] | None = None
+    cells: int = 32
+    max_steps: int = DEFAULT_MAX_STEPS
+    optimiser: str = "lm"
+    rtol: float = 1e-8
+    seed: int = 0
+    local_rounds: int = DEFAULT_LOCAL_ROUNDS
+    progress: bool = True
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        if self.model not in ("relaxed", "history"):
+            raise ValueError(f"model must be 'relaxed' or 'history'; got {self.model!r}")
+        put("cells", _integer("cells", self.cells, 2))
+        put("n_starts", _integer("n_starts", DEFAULT_STARTS if self.n_starts is None
+                                 else self.n_starts, 1))
+        put("max_steps", _integer("max_steps", DEFAULT_MAX_STEPS if self.max_steps is None
+                                  else self.max_steps, 1))
+        if self.optimiser not in OPTIMISERS:
+            raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {self.optimiser!r}")
+        if isinstance(self.rtol, bool) or not (isinstance(self.rtol, int | float)
+                                               and 0 < self.rtol < 1):
+            raise ValueError(f"rtol must be a number in (0, 1); got {plain(self.rtol)}")
+        put("rtol", float(self.rtol))
+        put("local_rounds", _integer("local_rounds", self.local_rounds, 0))
+        put("seed", _integer("seed", self.seed, 0))
+        if self.max_samples is not None:
+            put("max_samples", _integer("max_samples", self.max_samples, 4))
+        if self.contact_point is not None and self.contact_point not in CONTACT_POINT:
+            raise ValueError(f"contact_point must be one of "
+                             f"{', '.join(map(repr, CONTACT_POINT))} or None; got "
+                             f"{plain(self.contact_point)}")
+        put("indentation_range", check_indentation_range(self.indentation_range))
+        put("segments", check_segments(self.segments, self.model))
+        if self.profile is None:
+            r = self.radius
+            if r is None or isinstance(r, bool) or not (isinstance(r, int | float)
+                                                        and math.isfinite(r) and r > 0):
+                raise ValueError(f"radius must be finite and > 0 [m]; got {plain(r)}")
+            put("radius", float(r))
+        elif self.radius is not None:
+            raise ValueError("give either radius or profile, not both")
+        elif not isinstance(self.profile, jc.AbstractProfile):
+            raise ValueError(f"profile must be a jaxcontact profile (e.g. jc.Parabola(R)); "
+                             f"got {type(self.profile).__name__}")
+        if self.spring_constant is not None:
+            try:
+                ks = np.atleast_1d(np.asarray(self.spring_constant, dtype=float))
+            except (TypeError, ValueError):
+                ks = np.array([np.nan])
+            if ks.ndim != 1 or not np.all(np.isfinite(ks) & (ks > 0)):
+                raise ValueError(f"spring_constant must be finite and > 0 [N/m]; got "
+                                 f"{plain(self.spring_constant)}")
+            put("spring_constant", float(ks[0]) if np.ndim(self.spring_constant) == 0
+                else tuple(float(k) for k in ks))
+        if not isinstance(self.force_offset, bool | np.bool_):
+            raise ValueError(f"force_offset must be True or False; got "
+                             f"{plain(self.force_offset)}")
+        put("force_offset", bool(self.force_offset))
+        for name in ("initial", "fixed", "bounds"):
+            put(name, _mapping(name, getattr(self, name)))
+        if self.rheology != "auto":  # the model, rheology, loading and grid (named errors)
+            make_spec(self.model, self.rheology, compliant=self.spring_constant is not None,
+                      cells=self.cells)
+        elif self.spring_constant is not None and self.model != "history":
+            raise ValueError("a compliant loading system (spring_constant) needs "
+                             "model='history'")
+        put("progress", bool(self.progress))
+
+    @functools.cached_property
+    def probe(self) -> jc.AbstractProfile:
+        """The indenter's profile: `profile`, or a :class:`jaxcontact.Parabola` of `radius`."""
+        return self.profile if self.profile is not None else jc.Parabola(self.radius)
+
+    def chain(self) -> list[str]:
+        """The rheologies fitted in turn, each started also from the previous optimum
+        (:func:`fitting._start.nested_starts`): "prony:N" is "standard", "prony:2", …,
+        "prony:N" (a richer model never ends worse than the simpler one it contains);
+        "auto" is :data:`AUTO_CHAIN`; any other rheology is fitted alone."""
+        if self.rheology == "auto":
+            return list(AUTO_CHAIN)
+        spec = make_spec(self.model, self.rheology, cells=self.cells)
+        if spec.rheology == "prony" and spec.arms > 1:
+            return ["standard"] + [f"prony:{k}" for k in range(2, spec.arms + 1)]
+        return [self.rheology]
+
+    def solver(self) -> AbstractLeastSquaresSolver:
+        """The least-squares solver of every start (:func:`make_solver` of `optimiser`,
+        `rtol` and `max_steps`)."""
+        return make_solver(self.optimiser, rtol=self.rtol, max_steps=self.max_steps)
+
+    def check_each_curve_alone(self) -> FitOptions:
+        """These options for curves fitted one by one (:func:`fitting.fit_each`): one model
+        for all (not "auto") and one spring constant (or each curve's own); `ValueError`
+        naming the option otherwise. Returns `self`."""
+        if self.rheology == "auto":
+            raise ValueError("rheology: 'auto' is not offered by fit_each (a map needs one "
+                             "model for all points); choose 'standard' or 'prony:N'")
+        if self.spring_constant is not None and np.ndim(self.spring_constant) != 0:
+            raise ValueError("spring_constant: give one value for all curves (or None: each "
+                             "curve's own)")
+        return self
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class BatchOptions(_Options):
+    """How :func:`fitting.fit_each` schedules its independent fits (what :func:`fitting.fit`,
+    one problem, does not need). Checked when made, frozen, keywords only; each field is
+    also a keyword of :func:`fitting.fit_each`.
+
+    **Fields:**
+
+    - `chunk`: curves per compiled call, an integer >= 1 (default 8); every chunk has this
+      shape (the last one padded), so one compilation serves all.
+    - `workers`: lanes of the pool of starts per device, an integer >= 1 (default `None`:
+      all starts of the chunk, at most 64; :meth:`lanes`).
+    - `devices`: the devices the chunk's starts are spread over (default `None`: every
+      local device of JAX's default backend; :func:`fitting.solve_batch`).
+    """
+
+    chunk: int = 8
+    workers: int | None = None
+    devices: Sequence | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "chunk", _integer("chunk", self.chunk, 1))
+        if self.workers is not None:
+            object.__setattr__(self, "workers", _integer("workers", self.workers, 1))
+        if self.devices is not None:
+            devices = tuple(self.devices)
+            if not devices:
+                raise ValueError("devices: give at least one device (or None for all local "
+                                 "ones)")
+            object.__setattr__(self, "devices", devices)
+
+    def lanes(self, problems: int, starts: int) -> int:
+        """Lanes of the pool for `problems` problems of `starts` starts each: `workers`, or
+        all of them, at most 64."""
+        return self.workers if self.workers is not None else min(64, problems * starts)
+
+
+#: How :func:`fitting.fit` runs its one problem on the batched path: one problem a
+#: chunk, its starts on at most 8 lanes (a lane whose start has converged takes the next).
+SINGLE = BatchOptions(chunk=1, workers=8)

@@ -1,7 +1,8 @@
 """The forward model inside a user's sharded program: ``jit(vmap(f), out_shardings=...)`` over
 inputs sharded on 4 virtual CPU devices, in JAX's automatic and explicit axis modes, gives
 the values of the plain ``vmap`` (`jaxcontact._sharding`): `retract`, the elastic
-functions, `simulate` and `bem_simulate`, each closing over a time grid created before the
+functions, `simulate`, `bem_simulate` and the fitting objective (residuals and their
+Jacobian, `fitting.residuals`), each closing over a time grid created before the
 mesh (as a user's program does). The devices must be set before JAX
 starts, so the check runs in a fresh interpreter."""
 
@@ -49,9 +50,28 @@ SCRIPT = textwrap.dedent('''
                             throw=False)
         return s.force, s.result._value
 
+    # the fitting objective: residuals and their forward-mode Jacobian (what every
+    # Levenberg-Marquardt step evaluates) of a prepared curve closed over, per lane
+    import fitting
+    from fitting._objective import jacobian_fn
+
+    curve_sol = jc.retract(rh(1e6), prof, work_of_adhesion=0.05, depth=4e-6,
+                           velocity=1e-4, ts=ts)
+    curve = fitting.Curve(time=np.asarray(ts), displacement=np.asarray(curve_sol.displacement),
+                          force=np.asarray(curve_sol.force), segment=np.zeros(ts.size, int),
+                          segment_names=("retract",))
+    spec = fitting.make_spec("relaxed", "standard")
+    data = fitting.prepare_curves([curve], spec, radius=1e-4)
+
+    def f_objective(G0):
+        p = jnp.stack([G0, 2e5 + 0 * G0, 1e4 + 0 * G0, 0.05 + 0 * G0])
+        r, J = jacobian_fn(lambda q: fitting.residuals(q, data, spec))(p)
+        return r, J
+
     cases = [(mode, name, f) for mode in ("auto", "explicit")
              for name, f in (("retract", f_retract), ("elastic", f_elastic),
-                             ("simulate", f_simulate), ("bem", f_bem))]
+                             ("simulate", f_simulate), ("bem", f_bem),
+                             ("objective", f_objective))]
     for mode, name, f in cases:
         kind = AxisType.Explicit if mode == "explicit" else AxisType.Auto
         mesh = jax.make_mesh((4,), ("b",), axis_types=(kind,))
@@ -75,4 +95,4 @@ def test_forward_model_inside_sharded_jit_vmap(tmp_path):
     out = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True,
                          env=env, timeout=1800)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert out.stdout.count(" ok") == 8, out.stdout
+    assert out.stdout.count(" ok") == 10, out.stdout

@@ -23,7 +23,8 @@ data).
 The model force jumps to 0 at the jump-off time $t^*(\theta)$, which the forward models
 refine between samples. A plain $F_\mathrm{model}(t_i)$ would make each residual a step
 function of the parameters where $t^*$ crosses $t_i$. Instead each sample stands for its
-interval $[l_i, u_i]$ (halfway to its neighbours; :class:`fitting.CurveBatch`) and, for the
+interval $[l_i, u_i]$ (halfway to its neighbours, the first and last ending at the first and
+last sample, where the simulation starts and ends; :class:`fitting.CurveBatch`) and, for the
 one sample whose interval contains $t^*$, the model force is the average over the
 interval of the attached force followed by 0:
 

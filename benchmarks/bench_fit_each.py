@@ -14,7 +14,7 @@ relative difference of the fitted values between the two (the same optimum is ex
 and the curves whose χ² is at most the loop's.
 
     python benchmarks/bench_fit_each.py [--curves 32] [--samples 60] [--chunks 8,32]
-        [--repeats 1] [--no-loop] [--quick] [--out benchmarks/results/fit_each.md]
+        [--repeats 1] [--no-loop] [--quick] [--model relaxed|history] [--out -]
 
 `--quick`: 8 curves, chunk 8, no loop, written to stdout only (a smoke run, e.g. on a
 GPU machine: about a minute on 2 CPU cores, mostly compilation).
@@ -59,6 +59,30 @@ def make_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
     return out
 
 
+def make_history_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
+    """QI-like approach-retract curves without a hold (`jc.simulate`, full history): the
+    indentation rises linearly to `D0` and falls back to -0.5 `D0` (the probe detaches),
+    1 % noise, the parameters of `make_map`."""
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(np.sqrt(n)))
+    half = samples // 2
+    ts = np.linspace(0.0, 2 * D0 / V * 1.25, samples)
+    d = np.r_[np.linspace(0.0, D0, half), np.linspace(D0, -0.5 * D0, samples - half)]
+    seg = np.r_[np.zeros(half, int), np.ones(samples - half, int)]
+    out = []
+    for i in range(n):
+        p = {k: v * rng.uniform(0.7, 1.3) for k, v in BASE.items()}
+        sol = jc.simulate(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
+                          p["work_of_adhesion"], ts, d)
+        f = np.asarray(sol.force)
+        f = f + 0.01 * np.ptp(f) * rng.standard_normal(samples)
+        out.append(fitting.Curve(
+            time=ts, displacement=d, force=f, segment=seg,
+            segment_names=("approach", "retract"),
+            metadata={"grid index x": i % side, "grid index y": i // side}))
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--curves", type=int, default=32)
@@ -68,20 +92,28 @@ def main(argv=None):
     ap.add_argument("--no-loop", action="store_true", help="leave out the loop of fit")
     ap.add_argument("--quick", action="store_true",
                     help="8 curves, chunk 8, no loop, no file written")
-    ap.add_argument("--out", default="benchmarks/results/fit_each.md")
+    ap.add_argument("--model", default="relaxed", choices=("relaxed", "history"),
+                    help="relaxed: retract curves from a relaxed contact (`make_map`); "
+                         "history: QI-like approach-retract curves (`make_history_map`)")
+    ap.add_argument("--out", default="-",
+                    help="'-' (default): print the table; a path: write it there (replaced: "
+                         "benchmarks/results/fit_each.md holds hand-written sections, so "
+                         "paste a run's table into it rather than writing over it)")
     args = ap.parse_args(argv)
     if args.quick:
         args.curves, args.chunks, args.no_loop = 8, "8", True
-    curves = make_map(args.curves, args.samples)
+    curves = (make_map if args.model == "relaxed" else make_history_map)(args.curves,
+                                                                          args.samples)
+    fit_kw = {"radius": R, "model": args.model, "progress": False}
     warnings.simplefilter("ignore")
 
     rows, ref, chi_ref, t_loop = [], None, None, None
     if not args.no_loop:
         t0 = time.perf_counter()
-        [fitting.fit(c, radius=R, progress=False) for c in curves]
+        [fitting.fit(c, **fit_kw) for c in curves]
         t_cold = time.perf_counter() - t0
         t0 = time.perf_counter()
-        loop = [fitting.fit(c, radius=R, progress=False) for c in curves]
+        loop = [fitting.fit(c, **fit_kw) for c in curves]
         t_loop = time.perf_counter() - t0
         ref = np.array([r.values for r in loop])
         chi_ref = np.array([r.chi2 for r in loop])
@@ -91,12 +123,12 @@ def main(argv=None):
         print(rows[-1], flush=True)
     for chunk in (int(c) for c in args.chunks.split(",")):
         t0 = time.perf_counter()
-        fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
+        fitting.fit_each(curves, chunk=chunk, **fit_kw)
         cold = time.perf_counter() - t0
         warm, stages = [], []
         for _ in range(max(1, args.repeats)):
             t0 = time.perf_counter()
-            res = fitting.fit_each(curves, radius=R, chunk=chunk, progress=False)
+            res = fitting.fit_each(curves, chunk=chunk, **fit_kw)
             warm.append(time.perf_counter() - t0)
             stages.append(res.timings)
         w = statistics.median(warm)
@@ -119,7 +151,7 @@ def main(argv=None):
         "# Force-map fits: `fitting.fit_each` against a loop of `fitting.fit`",
         "",
         f"{machine()}, {jax.devices()[0].platform} ({len(jax.devices())} device(s)); "
-        f"{args.curves} synthetic curves × {args.samples} samples, relaxed model, default "
+        f"{args.curves} synthetic curves × {args.samples} samples, {args.model} model, default "
         f"search ({fitting.DEFAULT_STARTS} starts, up to {fitting.DEFAULT_LOCAL_ROUNDS} "
         f"local rounds); `python benchmarks/bench_fit_each.py {' '.join(sys.argv[1:])}`.",
         "",
@@ -136,7 +168,7 @@ def main(argv=None):
         "optimise [ms] | finish [ms] | LM steps | ratio | max rel. diff. | χ² ≤ loop |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    if args.quick:
+    if args.quick or args.out == "-":
         print("\n".join(head + rows))
     else:
         write_table(args.out, head + rows)

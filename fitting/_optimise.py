@@ -116,9 +116,21 @@ def _fn(spec: ModelSpec):
     return fn
 
 
-def _solver(optimiser: str, rtol: float, atol: float, gtol: float, max_steps: int):
+#: Largest change of a free coordinate in one Levenberg–Marquardt step of a Prony fit
+#: (:attr:`fitting.LevenbergMarquardt.max_step`): the free coordinates are logarithms and
+#: logistic arguments; unbounded, one step pushed a relaxation time (and with it other
+#: parameters) to $z \approx 70$–$10^4$, where the logistic's derivative is 0 in float64
+#: and the parameter can never return (``benchmarks/results/prony_convergence.md``).
+PRONY_MAX_STEP = 4.0
+
+
+def _solver(spec: ModelSpec, optimiser: str, rtol: float, atol: float, gtol: float,
+            max_steps: int):
+    """The solver of a search of `spec`: a Prony series' Levenberg–Marquardt steps are
+    bounded by :data:`PRONY_MAX_STEP`."""
     if optimiser == "lm":
-        return LevenbergMarquardt(rtol=rtol, atol=atol, max_steps=max_steps)
+        step = PRONY_MAX_STEP if spec.rheology == "prony" else float("inf")
+        return LevenbergMarquardt(rtol=rtol, atol=atol, max_steps=max_steps, max_step=step)
     if optimiser == "lbfgs":
         return LBFGS(rtol=rtol, gtol=gtol, max_steps=max_steps)
     raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
@@ -142,7 +154,7 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
     `workers` (`None`: one vmapped lane per start; an integer: that many lanes scheduled
     as a pool).
     """
-    solver = _solver(optimiser, rtol, atol, gtol, max_steps)
+    solver = _solver(spec, optimiser, rtol, atol, gtol, max_steps)
     fn = _fn(spec)
     if workers is None:
         return run_starts(solver, fn, z0s, (param, data))
@@ -198,7 +210,7 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
 @functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))
 def _solve_batch(spec, params, datas, z0s, limits, *, workers, rtol, atol, gtol, max_steps,
                  optimiser, keep_jacobian):
-    solver = _solver(optimiser, rtol, atol, gtol, max_steps)
+    solver = _solver(spec, optimiser, rtol, atol, gtol, max_steps)
     return run_pool(solver, _fn(spec), z0s, (params, datas), workers, limits=limits,
                     keep_jacobian=keep_jacobian)
 
@@ -455,16 +467,31 @@ def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixe
     guess.update(normalise_names(initial, names, "initial"))
     fixed, notes = _approach_only(data, guess, normalise_names(fixed, names, "fixed"))
     bnds = default_bounds(spec, scales)
+    starts = [guess] + search_starts(spec, scales, n_starts - 1, seed=seed)
+    if previous is not None:
+        nested = nested_starts(spec, previous.spec, previous.as_dict(), scales)
+        starts += nested
+        _contain(bnds, nested, [n for n, _, kind in info if kind == "time"])
     bnds.update(normalise_names(bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
                                   scales={"contact_offset": scales.depth,
                                           "force_offset": scales.force_range})
-    starts = [guess] + search_starts(spec, scales, n_starts - 1, seed=seed)
-    if previous is not None:
-        starts += nested_starts(spec, previous.spec, previous.as_dict(), scales)
     zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
                                        for s in starts]))
     return _Problem(spec, info, names, param, data, zs, curves, notes)
+
+
+def _contain(bounds, starts, names) -> None:
+    """Widen the default upper bounds of the parameters `names` (relaxation times) to
+    contain the nested `starts` (with room: a start at the bound would sit in the flat end
+    of the logistic): the simpler model's optimum stays a point of the richer one, so the
+    nested fit never ends above it. All of `names` get one bound (the arms stay
+    interchangeable: :func:`_sort_arms`)."""
+    top = max((float(q[n]) for q in starts for n in names), default=0.0)
+    for n in names:
+        lo, hi = bounds[n]
+        if top > hi / 1.5:
+            bounds[n] = (lo, 1.5 * top)
 
 
 def _approach_only(data: CurveBatch, guess, fixed) -> tuple[dict, list[str]]:
@@ -542,7 +569,8 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
     model_at = _compile_in_background(_model_at, pb.spec, pb.param,
                                       jnp.asarray(pb.param.internal_host(pb.zs[0])), pb.data)
     max_steps = int(opts["max_steps"])
-    solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8, max_steps)
+    solver = _solver(pb.spec, opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8,
+                     max_steps)
 
     def run(starts, limits):
         return [jax.device_get(_search(pb.spec, pb.param, pb.data, jnp.asarray(zs),

@@ -482,16 +482,20 @@ def _problem(curves, *, profile, model, rheology, spring_constant, initial, fixe
 
 
 def _contain(bounds, starts, names) -> None:
-    """Widen the default upper bounds of the parameters `names` (relaxation times) to
-    contain the nested `starts` (with room: a start at the bound would sit in the flat end
-    of the logistic): the simpler model's optimum stays a point of the richer one, so the
-    nested fit never ends above it. All of `names` get one bound (the arms stay
-    interchangeable: :func:`_sort_arms`)."""
-    top = max((float(q[n]) for q in starts for n in names), default=0.0)
+    """Widen the default bounds of the parameters `names` (relaxation times) to contain
+    the nested `starts` (with room: a start at a bound would sit in the flat end of the
+    logistic): the simpler model's optimum stays a point of the richer one, so the nested
+    fit never ends above it (a standard fit that is elastic in effect has a relaxation
+    time far below two sampling intervals). All of `names` get the same bounds (the arms
+    stay interchangeable: :func:`_sort_arms`)."""
+    values = [float(q[n]) for q in starts for n in names]
+    if not values:
+        return
+    top, bottom = max(values), min(values)
     for n in names:
         lo, hi = bounds[n]
-        if top > hi / 1.5:
-            bounds[n] = (lo, 1.5 * top)
+        bounds[n] = (min(lo, bottom / 1.5) if bottom < 1.5 * lo else lo,
+                     max(hi, 1.5 * top) if top > hi / 1.5 else hi)
 
 
 def _approach_only(data: CurveBatch, guess, fixed) -> tuple[dict, list[str]]:

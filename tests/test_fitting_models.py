@@ -446,7 +446,7 @@ def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
     # G_k t / tau_k over it): the default upper bound of tau_k is the duration of the
     # longest curve (8 s here: 4 um lifted at 0.5 um/s), not 10x it; every start lies
     # inside the bounds, away from the flat ends of the logistic; a nested start from a
-    # simpler optimum with a longer relaxation time widens the bound to contain it exactly
+    # simpler optimum with a relaxation time beyond them widens them to contain it exactly
     import types
 
     from fitting._optimise import _problem
@@ -474,3 +474,11 @@ def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
     assert np.max(np.abs(pb.zs)) < 10
     upper = np.exp(np.asarray(pb.param.upper)[t_idx])
     assert upper[0] == upper[1] > 3 * longest  # one bound: the arms stay interchangeable
+    # a standard fit elastic in effect (tau = 1e-15 s, far below two sampling intervals)
+    std["eta1"] = 1e-15 * 12e3
+    pb = _problem(curves, rheology="prony:2", previous=previous, **opts)
+    nat = np.asarray(jax.vmap(pb.param.natural)(jax.numpy.asarray(pb.zs)))
+    split = nat[np.argmin(np.abs(np.log(nat[:, t_idx[0]] / 1e-15)))]
+    np.testing.assert_allclose(split[t_idx], [1e-15] * 2, rtol=1e-9)
+    np.testing.assert_allclose(split[:3], [2.25e3, 3.375e3, 3.375e3], rtol=1e-9)
+    assert np.max(np.abs(pb.zs)) < 10

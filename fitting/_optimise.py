@@ -116,21 +116,9 @@ def _fn(spec: ModelSpec):
     return fn
 
 
-#: Largest change of a free coordinate in one Levenberg–Marquardt step of a Prony fit
-#: (:attr:`fitting.LevenbergMarquardt.max_step`): the free coordinates are logarithms and
-#: logistic arguments; unbounded, one step pushed a relaxation time (and with it other
-#: parameters) to $z \approx 70$–$10^4$, where the logistic's derivative is 0 in float64
-#: and the parameter can never return (``benchmarks/results/prony_convergence.md``).
-PRONY_MAX_STEP = 4.0
-
-
-def _solver(spec: ModelSpec, optimiser: str, rtol: float, atol: float, gtol: float,
-            max_steps: int):
-    """The solver of a search of `spec`: a Prony series' Levenberg–Marquardt steps are
-    bounded by :data:`PRONY_MAX_STEP`."""
+def _solver(optimiser: str, rtol: float, atol: float, gtol: float, max_steps: int):
     if optimiser == "lm":
-        step = PRONY_MAX_STEP if spec.rheology == "prony" else float("inf")
-        return LevenbergMarquardt(rtol=rtol, atol=atol, max_steps=max_steps, max_step=step)
+        return LevenbergMarquardt(rtol=rtol, atol=atol, max_steps=max_steps)
     if optimiser == "lbfgs":
         return LBFGS(rtol=rtol, gtol=gtol, max_steps=max_steps)
     raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {optimiser!r}")
@@ -154,7 +142,7 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
     `workers` (`None`: one vmapped lane per start; an integer: that many lanes scheduled
     as a pool).
     """
-    solver = _solver(spec, optimiser, rtol, atol, gtol, max_steps)
+    solver = _solver(optimiser, rtol, atol, gtol, max_steps)
     fn = _fn(spec)
     if workers is None:
         return run_starts(solver, fn, z0s, (param, data))
@@ -210,7 +198,7 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
 @functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))
 def _solve_batch(spec, params, datas, z0s, limits, *, workers, rtol, atol, gtol, max_steps,
                  optimiser, keep_jacobian):
-    solver = _solver(spec, optimiser, rtol, atol, gtol, max_steps)
+    solver = _solver(optimiser, rtol, atol, gtol, max_steps)
     return run_pool(solver, _fn(spec), z0s, (params, datas), workers, limits=limits,
                     keep_jacobian=keep_jacobian)
 
@@ -573,8 +561,7 @@ def _fit_one(curves, *, rheology, previous, show, warn, **opts) -> FitResult:
     model_at = _compile_in_background(_model_at, pb.spec, pb.param,
                                       jnp.asarray(pb.param.internal_host(pb.zs[0])), pb.data)
     max_steps = int(opts["max_steps"])
-    solver = _solver(pb.spec, opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8,
-                     max_steps)
+    solver = _solver(opts["optimiser"], float(opts["rtol"]), 1e-9, 1e-8, max_steps)
 
     def run(starts, limits):
         return [jax.device_get(_search(pb.spec, pb.param, pb.data, jnp.asarray(zs),

@@ -392,55 +392,6 @@ def test_levenberg_marquardt_follows_the_valley_of_an_almost_elastic_arm():
     assert np.all(np.asarray(plain.converged)) and np.all(np.asarray(plain.steps) > 60)
 
 
-def _one_arm_toy():
-    # G(t) = G_inf + G_1 exp(-t/tau_1) on t in [0, 1] (noise-free: the optimum is the truth
-    # exactly), in the fits' own parameterisation: logs of the moduli, tau_1 in [0.01, 1]
-    # through the logistic
-    import jax.numpy as jnp
-
-    from fitting._parameters import make_parameterisation
-
-    info = [("G_inf", "Pa", "modulus"), ("G_1", "Pa", "modulus"), ("tau_1", "s", "time")]
-    param = make_parameterisation(info, {"G_inf": 1.0, "G_1": 1.0, "tau_1": 0.1},
-                                  bounds={"G_inf": (1e-3, 1e3), "G_1": (1e-3, 1e3),
-                                          "tau_1": (0.01, 1.0)})
-    t = jnp.linspace(0.0, 1.0, 50)
-    data = 1.0 + 3.0 * jnp.exp(-t / 0.2)
-
-    def fn(z, param):  # sigma = 1e-3
-        p = param.natural(z)
-        return (p[0] + p[1] * jnp.exp(-t / p[2]) - data) / 1e-3
-
-    return param, fn
-
-
-def test_prony_search_steps_do_not_saturate_the_logistic():
-    # the cause of nested prony:2 fits running out of steps: one unbounded
-    # Levenberg-Marquardt step pushed a bounded parameter's logistic argument to 70 or
-    # more, where its derivative is 0 in float64 (the column of J exactly 0): it never
-    # returns. The solver of a Prony search bounds every step (PRONY_MAX_STEP) and reaches
-    # the truth from starts where plain steps saturate (and "converge" there, far off).
-    from fitting._least_squares import LevenbergMarquardt, run_starts
-    from fitting._optimise import _solver
-
-    param, fn = _one_arm_toy()
-    starts = np.array([[1.0, 0.01, 0.5], [10.0, 0.1, 0.5], [0.1, 1.0, 0.011],
-                       [10.0, 1.0, 0.011]])  # G_inf, G_1, tau_1
-    z0 = jax.numpy.asarray(param.z_of(param.to_internal(starts)))
-    plain = jax.device_get(run_starts(LevenbergMarquardt(max_steps=100), fn, z0, param))
-    assert np.all(np.max(np.abs(plain.z), axis=1) > 40)  # saturated: sigma(40) == 1.0
-    assert np.all(np.asarray(plain.chi2) > 1e6)
-    spec = fitting._spec.make_spec("relaxed", "prony:1")
-    solver = _solver(spec, "lm", 1e-8, 1e-9, 1e-8, 100)
-    s = jax.device_get(run_starts(solver, fn, z0, param))
-    assert np.all(np.asarray(s.converged)), np.asarray(s.steps)
-    p = np.asarray(jax.vmap(param.natural)(jax.numpy.asarray(s.z)))
-    np.testing.assert_allclose(p, np.tile([1.0, 3.0, 0.2], (4, 1)), rtol=1e-6)
-    # the standard model's search is unchanged (unbounded steps)
-    assert _solver(fitting._spec.make_spec("relaxed", "standard"), "lm", 1e-8, 1e-9, 1e-8,
-                   100).max_step == float("inf")
-
-
 def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
     # an arm slower than the curve is a spring beside G_inf (G_k (1 - exp(-t/tau_k)) ~
     # G_k t / tau_k over it): the default upper bound of tau_k is the duration of the

@@ -64,11 +64,12 @@ outside the first box.
 Nested models (:func:`nested_starts`): ``prony:N`` starts from the ``prony:N-1`` (or
 standard-model) optimum with one arm added: as each existing arm split in two equal arms
 at its own relaxation time (the same relaxation function, so the same loss: a descent from
-there never ends above the simpler fit; a simpler model's relaxation time beyond the
-curve's duration widens the default upper bound of the relaxation times to contain it,
-:func:`fitting._optimise.fit`), and as an arm of modulus $10^{-3}G_\infty$, or
-just inside the lower bound of the moduli, at each of several relaxation times (between and
-beyond the existing ones), from which a second relaxation time can grow.
+there never ends above the simpler fit; a simpler model's relaxation time outside the
+default bounds of the relaxation times, beyond the curve's duration or below two sampling
+intervals, widens them to contain it, ``fitting._optimise._contain``), and as an arm of
+modulus $10^{-3}G_\infty$, or just inside the lower bound of the moduli, at each of several
+relaxation times (between and beyond the existing ones), from which a second relaxation
+time can grow.
 """
 
 from __future__ import annotations

@@ -344,16 +344,35 @@ def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
     guess.update(normalise_names(o.initial, names, "initial"))
     fixed, notes = _approach_only(data, guess, normalise_names(o.fixed, names, "fixed"))
     bnds = default_bounds(spec, scales)
+    starts = [guess] + search_starts(spec, scales, o.n_starts - 1, seed=o.seed)
+    if previous is not None:
+        nested = nested_starts(spec, previous.spec, previous.as_dict(), scales)
+        starts += nested
+        _contain(bnds, nested, [n for n, _, kind in info if kind == "time"])
     bnds.update(normalise_names(o.bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
                                   scales={"contact_offset": scales.depth,
                                           "force_offset": scales.force_range})
-    starts = [guess] + search_starts(spec, scales, o.n_starts - 1, seed=o.seed)
-    if previous is not None:
-        starts += nested_starts(spec, previous.spec, previous.as_dict(), scales)
     zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
                                        for s in starts]))
     return _Problem(spec, info, names, param, data, zs, curves, notes)
+
+
+def _contain(bounds, starts, names) -> None:
+    """Widen the default bounds of the parameters `names` (relaxation times) to contain
+    the nested `starts` (with room: a start at a bound would sit in the flat end of the
+    logistic): the simpler model's optimum stays a point of the richer one, so the nested
+    fit never ends above it (a standard fit that is elastic in effect has a relaxation
+    time far below two sampling intervals). All of `names` get the same bounds (the arms
+    stay interchangeable: :func:`_sort_arms`)."""
+    values = [float(q[n]) for q in starts for n in names]
+    if not values:
+        return
+    top, bottom = max(values), min(values)
+    for n in names:
+        lo, hi = bounds[n]
+        bounds[n] = (min(lo, bottom / 1.5) if bottom < 1.5 * lo else lo,
+                     max(hi, 1.5 * top) if top > hi / 1.5 else hi)
 
 
 def _approach_only(data: CurveBatch, guess, fixed) -> tuple[dict, list[str]]:

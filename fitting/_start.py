@@ -10,7 +10,7 @@ Data scales (:func:`data_scales`)
   force at the start of a hold, whichever is larger; at least $1.5\,G_H$.
 * $\tau$: from the hold (time to relax by $1 - 1/e$ of the force drop) if there is one,
   else a fifth of the lift duration. Time scales of the data: $\tau_\min$ = two sampling
-  intervals, $\tau_\max$ = ten times the duration.
+  intervals, $\tau_\max$ = ten times the duration $T$ (of the longest curve).
 * $\Delta\gamma$: JKR with $\Delta\gamma_\mathrm{eff} = \Delta\gamma\,G_g/G_H$ (the paper's
   slow limit): $\Delta\gamma = |F_\min|\,G_H/(1.5\pi R\,G_g)$ (the profile's radius at the
   depth for other profiles), with $|F_\min|$ at least $10^{-3}$ of the force range.
@@ -22,7 +22,14 @@ retract.
 
 Default bounds (:func:`default_bounds`) keep a fit from running off to $10^{-168}$ Pa:
 moduli in $[10^{-6}, 10^6]\,G_H$, viscosities in $[10^{-6}G_H\tau_\min,
-10^6G_H\tau_\max]$, relaxation times in $[\tau_\min, \tau_\max]$, $\Delta\gamma$ in
+10^6G_H\tau_\max]$, the relaxation times of a Prony series in $[\tau_\min, T]$ (what the
+curve resolves, :attr:`DataScales.tau_resolved`: an arm that relaxes more slowly than the
+curve lasts changes by $G_k(1 - e^{-t/\tau_k}) \approx G_k t/\tau_k$ over it, a spring
+beside $G_\infty$ and a slight drift, so $G_\infty$, $G_k$ and $\tau_k$ are not
+determined apart; a fit that allowed $\tau_k$ up to $10T$ crawled along the valley
+$G_\infty \leftrightarrow G_k$ to its step limit, ``benchmarks/results/prony_convergence.md``;
+a nested fit widens it to contain the simpler model's relaxation times, see
+:func:`nested_starts`), $\Delta\gamma$ in
 $[10^{-6}, 10^{6}]$ times its estimate, the contact offset in $[-d_\max, d_\max/2]$, the
 force offset within ± the force range. A parameter the data push to a bound is reported
 at that bound (no standard error).
@@ -57,9 +64,12 @@ outside the first box.
 Nested models (:func:`nested_starts`): ``prony:N`` starts from the ``prony:N-1`` (or
 standard-model) optimum with one arm added: as each existing arm split in two equal arms
 at its own relaxation time (the same relaxation function, so the same loss: a descent from
-there never ends above the simpler fit), and as an arm of modulus $10^{-3}G_\infty$, or
-just inside the lower bound of the moduli, at each of several relaxation times (between and
-beyond the existing ones), from which a second relaxation time can grow.
+there never ends above the simpler fit; a simpler model's relaxation time outside the
+default bounds of the relaxation times, beyond the curve's duration or below two sampling
+intervals, widens them to contain it, ``fitting._optimise._contain``), and as an arm of
+modulus $10^{-3}G_\infty$, or just inside the lower bound of the moduli, at each of several
+relaxation times (between and beyond the existing ones), from which a second relaxation
+time can grow.
 """
 
 from __future__ import annotations
@@ -93,6 +103,12 @@ class DataScales:
     work_of_adhesion: float
     depth: float
     force_range: float
+
+    @property
+    def tau_resolved(self) -> float:
+        r"""The longest relaxation time the curves resolve [s]: their duration $T$ (at
+        least $2\tau_\min$); the upper bound of a Prony series' relaxation times."""
+        return max(self.duration, 2.0 * self.tau_min)
 
 
 def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
@@ -190,6 +206,9 @@ def initial_guess(curves: Sequence[Curve], spec: ModelSpec, profile,
     s = data_scales(curves, spec, profile) if scales is None else scales
     n = spec.arms
     taus = s.tau * np.logspace(-1, 1, n) if n > 1 else [s.tau]
+    if spec.rheology == "prony":  # inside the bounds of the relaxation times, not at them
+        lo, hi = math.log(s.tau_min), math.log(s.tau_resolved)
+        taus = np.exp(np.clip(np.log(taus), lo + 0.05 * (hi - lo), hi - 0.05 * (hi - lo)))
     return from_physical(spec, s.g_relaxed, s.g_glass, taus, np.full(n, 1.0 / max(n, 1)),
                          s.work_of_adhesion)
 
@@ -204,7 +223,7 @@ def default_bounds(spec: ModelSpec, s: DataScales) -> dict[str, tuple[float, flo
         elif kind == "viscosity":
             out[name] = (1e-6 * g * s.tau_min, 1e6 * g * s.tau_max)
         elif kind == "time":
-            out[name] = (s.tau_min, s.tau_max)
+            out[name] = (s.tau_min, s.tau_resolved)
         elif kind == "adhesion":
             out[name] = (1e-6 * s.work_of_adhesion, 1e6 * s.work_of_adhesion)
         elif kind == "offset_length":
@@ -322,7 +341,7 @@ def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
         return float(np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x))
 
     out = []
-    tau_hi = max(s.duration, 2.0 * s.tau_min)
+    tau_hi = s.tau_resolved
     for row in u:
         g_inf = logu(row[0], 1e-2 * s.g_relaxed, 1e2 * s.g_relaxed)
         ratio = logu(row[1], 1.02, 100.0)
@@ -363,7 +382,7 @@ def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
     if add < 0:
         raise ValueError("the simpler model has more arms")
     logt = np.sort(np.log(taus))
-    lo, hi = math.log(s.tau_min), math.log(s.tau_max)
+    lo, hi = math.log(s.tau_min), math.log(s.tau_resolved)
     cands = list(0.5 * (logt[1:] + logt[:-1]))
     cands += [0.5 * (lo + logt[0]), 0.5 * (logt[-1] + hi)]
     cands += [logt[0] - math.log(10.0), logt[-1] + math.log(10.0)]

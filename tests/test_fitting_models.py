@@ -390,3 +390,46 @@ def test_levenberg_marquardt_follows_the_valley_of_an_almost_elastic_arm():
     assert not np.any(np.asarray(plain.converged))
     plain = run_starts(LevenbergMarquardt(max_steps=200), fn, z0, None)
     assert np.all(np.asarray(plain.converged)) and np.all(np.asarray(plain.steps) > 60)
+
+
+def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
+    # an arm slower than the curve is a spring beside G_inf (G_k (1 - exp(-t/tau_k)) ~
+    # G_k t / tau_k over it): the default upper bound of tau_k is the duration of the
+    # longest curve (8 s here: 4 um lifted at 0.5 um/s), not 10x it; every start lies
+    # inside the bounds, away from the flat ends of the logistic; a nested start from a
+    # simpler optimum with a relaxation time beyond them widens them to contain it exactly
+    import types
+
+    from fitting._optimise import _problem
+
+    curves = _prony_curves()
+    longest = max(float(c.time[-1] - c.time[0]) for c in curves)
+    opts = dict(profile=jc.Parabola(R), model="relaxed", spring_constant=None, initial=None,
+                fixed=None, bounds=None, contact_point="none", force_offset=False,
+                n_starts=8, max_samples=None, cells=32, seed=0)
+    pb = _problem(curves, rheology="prony:2", previous=None, **opts)
+    t_idx = [pb.names.index("tau_1"), pb.names.index("tau_2")]
+    upper = np.exp(np.asarray(pb.param.upper)[t_idx])
+    np.testing.assert_allclose(upper, [longest, longest], rtol=1e-12)
+    assert np.max(np.abs(pb.zs)) < 10  # no start in the saturated logistic
+    # the standard optimum with tau = eta1 / (G0 + G1) = 3 T, as prony:2's split start
+    std = {"G0": 9e3, "G1": 3e3, "eta1": 3 * longest * 12e3, "work_of_adhesion": 5e-3}
+    previous = types.SimpleNamespace(spec=fitting._spec.make_spec("relaxed", "standard"),
+                                     as_dict=lambda: dict(std))
+    pb = _problem(curves, rheology="prony:2", previous=previous, **opts)
+    nat = np.asarray(jax.vmap(pb.param.natural)(jax.numpy.asarray(pb.zs)))
+    split = nat[np.argmin(np.abs(nat[:, t_idx[0]] / (3 * longest) - 1))]
+    np.testing.assert_allclose(split[t_idx], [3 * longest] * 2, rtol=1e-9)
+    # G_inf = G0 G1 / (G0 + G1) and the two arms share G0 - G_inf (the standard model)
+    np.testing.assert_allclose(split[:3], [2.25e3, 3.375e3, 3.375e3], rtol=1e-9)
+    assert np.max(np.abs(pb.zs)) < 10
+    upper = np.exp(np.asarray(pb.param.upper)[t_idx])
+    assert upper[0] == upper[1] > 3 * longest  # one bound: the arms stay interchangeable
+    # a standard fit elastic in effect (tau = 1e-15 s, far below two sampling intervals)
+    std["eta1"] = 1e-15 * 12e3
+    pb = _problem(curves, rheology="prony:2", previous=previous, **opts)
+    nat = np.asarray(jax.vmap(pb.param.natural)(jax.numpy.asarray(pb.zs)))
+    split = nat[np.argmin(np.abs(np.log(nat[:, t_idx[0]] / 1e-15)))]
+    np.testing.assert_allclose(split[t_idx], [1e-15] * 2, rtol=1e-9)
+    np.testing.assert_allclose(split[:3], [2.25e3, 3.375e3, 3.375e3], rtol=1e-9)
+    assert np.max(np.abs(pb.zs)) < 10

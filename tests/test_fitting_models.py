@@ -404,10 +404,10 @@ def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
 
     curves = _prony_curves()
     longest = max(float(c.time[-1] - c.time[0]) for c in curves)
-    opts = dict(profile=jc.Parabola(R), model="relaxed", spring_constant=None, initial=None,
-                fixed=None, bounds=None, contact_point="none", force_offset=False,
-                n_starts=8, max_samples=None, cells=32, seed=0)
-    pb = _problem(curves, rheology="prony:2", previous=None, **opts)
+    options = fitting.FitOptions(profile=jc.Parabola(R), model="relaxed", rheology="prony:2",
+                                 contact_point="none", n_starts=8, seed=0)
+    opts = dict(contact_point="none")
+    pb = _problem(curves, options, rheology="prony:2", previous=None, **opts)
     t_idx = [pb.names.index("tau_1"), pb.names.index("tau_2")]
     upper = np.exp(np.asarray(pb.param.upper)[t_idx])
     np.testing.assert_allclose(upper, [longest, longest], rtol=1e-12)
@@ -416,7 +416,7 @@ def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
     std = {"G0": 9e3, "G1": 3e3, "eta1": 3 * longest * 12e3, "work_of_adhesion": 5e-3}
     previous = types.SimpleNamespace(spec=fitting._spec.make_spec("relaxed", "standard"),
                                      as_dict=lambda: dict(std))
-    pb = _problem(curves, rheology="prony:2", previous=previous, **opts)
+    pb = _problem(curves, options, rheology="prony:2", previous=previous, **opts)
     nat = np.asarray(jax.vmap(pb.param.natural)(jax.numpy.asarray(pb.zs)))
     split = nat[np.argmin(np.abs(nat[:, t_idx[0]] / (3 * longest) - 1))]
     np.testing.assert_allclose(split[t_idx], [3 * longest] * 2, rtol=1e-9)
@@ -427,7 +427,7 @@ def test_prony_relaxation_times_bounded_by_the_curve_and_nested_starts_inside():
     assert upper[0] == upper[1] > 3 * longest  # one bound: the arms stay interchangeable
     # a standard fit elastic in effect (tau = 1e-15 s, far below two sampling intervals)
     std["eta1"] = 1e-15 * 12e3
-    pb = _problem(curves, rheology="prony:2", previous=previous, **opts)
+    pb = _problem(curves, options, rheology="prony:2", previous=previous, **opts)
     nat = np.asarray(jax.vmap(pb.param.natural)(jax.numpy.asarray(pb.zs)))
     split = nat[np.argmin(np.abs(np.log(nat[:, t_idx[0]] / 1e-15)))]
     np.testing.assert_allclose(split[t_idx], [1e-15] * 2, rtol=1e-9)

@@ -109,3 +109,33 @@ def test_the_walk_sees_lazy_imports(tmp_path):
     src.write_text("def f():\n    import fitting._optimise\n    from . import other\n")
     deps = _imports("jaxcontact.m", src, {"fitting", "fitting._optimise", "jaxcontact.other"})
     assert deps == {"fitting._optimise", "jaxcontact.other"}
+
+
+def _commands() -> set[str]:
+    """The command modules of the command line: those that define `add_parser`."""
+    out = set()
+    for name, path in _modules().items():
+        if not name.startswith("jaxcontact_cli."):
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        if any(isinstance(n, ast.FunctionDef) and n.name == "add_parser" for n in tree.body):
+            out.add(name)
+    return out
+
+
+def test_commands_stand_side_by_side():
+    # `simulate`, `sweep`, `fit`, `demo` share what they share through `_common` (and their
+    # own parts, e.g. `_simulate_bem`): no command reaches another through its imports
+    graph = _graph()
+    commands = _commands()
+    assert {"jaxcontact_cli._simulate", "jaxcontact_cli._sweep"} <= commands
+    bad = []
+    for c in sorted(commands):
+        seen, todo = set(), [c]
+        while todo:
+            for d in graph.get(todo.pop(), ()):
+                if d not in seen:
+                    seen.add(d)
+                    todo.append(d)
+        bad += [f"{c} reaches {d}" for d in sorted(seen & commands - {c})]
+    assert not bad, "commands importing commands:\n" + "\n".join(bad)

@@ -40,8 +40,10 @@ class SpringEquation(eqx.Module):
 
     def residual(self, force, depth, x):
         """$r = F + k d - c x$ [N] of the force `force` [N] at the indentation `depth` [m]
-        for the input `x`; increasing in `depth` wherever the contact's $dF/dd > -k$."""
-        return force + self.spring * depth - self.gain * x
+        for the input `x`; increasing in `depth` wherever the contact's $dF/dd > -k$.
+        Evaluated as $k(d - x) + F - (c - k)x$: a spring's extension without cancellation
+        (the last term vanishes for a spring, $c = k$)."""
+        return self.spring * (depth - x) + force - (self.gain - self.spring) * x
 
     def slope(self, contact_stiffness):
         """$dr/dd = dF/dd + k$ [N/m] for the contact's stiffness $dF/dd$ [N/m]."""

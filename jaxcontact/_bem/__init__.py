@@ -26,9 +26,11 @@ conjugate-gradient method in displacement control (fixed-shape masks in a
 `lax.while_loop`): conjugate directions on the active set, projection onto the bound, and a
 restart of the conjugacy when free cells that penetrate enter the active set.
 
-**Force control and compliant loading.** With a prescribed force $F$ (dead load) or a
-spring $k$ between the drive $z$ and the indenter ($F = k(z - d)$) the indentation is an
-unknown: at a fixed attached set, $d$ solves $F(d) + kd = $ ($F$ or $kz$) by Newton's method
+**Force control and compliant loading.** With a prescribed force $F$ (dead load,
+`loading=ForceControl()`) or a spring $k$ between the drive $z$ and the indenter
+($F = k(z - d)$, `loading=CompliantLoading(k)`) the indentation is an unknown: at a fixed
+attached set, $d$ solves the loading's `SpringEquation` $F(d) + kd = $ ($F$ or $kz$) by
+Newton's method (`_root.newton_iterate`, the loop that `simulate` uses as well)
 with the exact slope $\partial F/\partial d = E^*\Delta^2\sum_A\mathcal H_A^{-1}1$ (one
 CG on the fixed active set $A$). $F(d)$ is nondecreasing and convex at a fixed attached set
 (pressing deeper raises every pressure of $A$ and only adds cells), so the iteration

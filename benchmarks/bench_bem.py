@@ -116,7 +116,7 @@ def timing(cells, repeats):
         s, first, med, cpu = _timed(run, repeats if n <= 128 else 0)
         med = "–" if np.isnan(med) else f"{med:.1f}"
         print(f"| {n}² | {R / float(grid.cell_size):.0f} | {first:.1f} | {med} | {cpu:.1f} "
-              f"| {int(s.stats['cg_iterations'].sum())} | {int(s.stats['rounds'].sum())} "
+              f"| {int(s.details.cg_iterations.sum())} | {int(s.details.rounds.sum())} "
               f"| {float(s.max_tensile_force) / F_FC - 1:+.4f} "
               f"| {float(s.jumpoff_force) / F_DC - 1:+.4f} |", flush=True)
 
@@ -215,8 +215,8 @@ def convergence(cells):
         dc = jc.bem_simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA, ts, disp,
                              grid=jc.BEMGrid(n, 2.4 * a0))
         grid_fc = jc.BEMGrid(n, 2.4 * a1)
-        fc = jc.bem_simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA, ts, force=f_in,
-                             grid=grid_fc)
+        fc = jc.bem_simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA, ts, f_in,
+                             grid=grid_fc, loading=jc.ForceControl())
         rows.append((n, R / float(jc.BEMGrid(n, 2.4 * a0).cell_size),
                      float(dc.max_tensile_force) / F_FC - 1, float(dc.jumpoff_force) / F_DC - 1,
                      R / float(grid_fc.cell_size), float(fc.jumpoff_force) / F_FC - 1,

@@ -68,6 +68,7 @@ from ._foundation import FoundationGrid as FoundationGrid  # noqa: E402
 from ._foundation import AbstractLoading as AbstractLoading  # noqa: E402
 from ._foundation import DisplacementControl as DisplacementControl  # noqa: E402
 from ._foundation import CompliantLoading as CompliantLoading  # noqa: E402
+from ._foundation import ForceControl as ForceControl  # noqa: E402
 from ._elastic import PullOff as PullOff  # noqa: E402
 from ._elastic import contact_pressure as contact_pressure  # noqa: E402
 from ._elastic import jkr_contact_radius as jkr_contact_radius  # noqa: E402
@@ -81,6 +82,7 @@ from ._method import ExactUpdate as ExactUpdate  # noqa: E402
 from ._pulloff import retract as retract  # noqa: E402
 from ._solution import RESULTS as RESULTS  # noqa: E402
 from ._solution import ContactSolution as ContactSolution  # noqa: E402
+from ._solution import BEMDetails as BEMDetails  # noqa: E402
 from ._solution import ErrorEstimate as ErrorEstimate  # noqa: E402
 from ._solution import FoundationDetails as FoundationDetails  # noqa: E402
 from ._solution import RetractDetails as RetractDetails  # noqa: E402

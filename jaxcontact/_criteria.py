@@ -26,7 +26,7 @@ trace-safe coefficients below (the public functions call them too): `hess_coeffi
 (elastic MDR, `_elastic.py`, and the profiles' front), `line_load_coefficient` (the foundation,
 `_foundation/_model.py`), `relaxed_front_coefficient` (the relaxed front of `retract`,
 `_pulloff.py`, and of the sweep, `_sweep/_models.py`) and `cell_critical_stress` (the BEM,
-`_bem.py`). Changing the criterion (attachment different from detachment, a finite range)
+`_bem/_history.py`). Changing the criterion (attachment different from detachment, a finite range)
 means changing these.
 """
 

@@ -4,7 +4,11 @@ r"""Scalar root finding with implicit differentiation (the one home of the root 
 - `concave_root`: the root of a function that is concave on its bracket (monotone Newton
   from the right end, a fixed number of steps; the detachment front of the foundation).
 - `newton_root`: damped Newton steps from a guess for an increasing function (the
-  equilibrium of a compliant loading system).
+  equilibrium of a compliant loading system), differentiated implicitly.
+- `newton_iterate`: the Newton iteration itself, with the caller's evaluation (residual,
+  slope, stop) and safeguard: the one loop that solves the spring equation of a loading
+  system (`_foundation/_loading.SpringEquation`) in `simulate` (through `newton_root`) and
+  in `bem_simulate` (directly: every evaluation is a constrained solve on the grid).
 
 `bracketed_root` solves $f(x) = 0$ on a bracket $[x_\mathrm{lo}, x_\mathrm{hi}]$ with a
 safeguarded Newton iteration: it starts from the regula-falsi point of the bracket, takes the
@@ -37,7 +41,7 @@ from jax import lax
 
 from ._sharding import while_loop
 
-__all__ = ["bracketed_root", "concave_root", "newton_root"]
+__all__ = ["bracketed_root", "concave_root", "newton_iterate", "newton_root"]
 
 
 def _solve(fn, lo, hi, steps, dtype):
@@ -196,6 +200,33 @@ def concave_root(
         return y / jnp.where(slope == 0, 1.0, slope)
 
     return lax.custom_root(fn, hi, solve, tangent_solve)
+
+
+def newton_iterate(evaluate, x0, aux0, *, steps, slope_floor, fallback):
+    r"""Newton's method on a scalar equation $r(x) = 0$ with the caller's safeguard.
+
+    Each iteration calls `evaluate(x, aux) -> (r, slope, stop, aux)`: the residual, its
+    slope $dr/dx$, whether `x` is accepted (the loop then ends with this `x` and the new
+    `aux`), and values carried to the next evaluation (warm starts, counters; any pytree).
+    Otherwise $x \leftarrow x - r/r'$ where the slope exceeds `slope_floor`, and
+    $x \leftarrow$ `fallback(x, r, aux)` elsewhere (a flat or decreasing residual). At most
+    `steps` iterations (a `lax.while_loop`; forward-mode derivatives flow through it).
+
+    **Returns:** `(x, aux, stopped)`, `stopped` True where an evaluation accepted `x`.
+    """
+
+    def cond(c):
+        i, _, _, stop = c
+        return (i < steps) & jnp.logical_not(stop)
+
+    def body(c):
+        i, x, aux, _ = c
+        r, slope, stop, aux = evaluate(x, aux)
+        step = jnp.where(slope > slope_floor, x - r / slope, fallback(x, r, aux))
+        return i + 1, jnp.where(stop, x, step), aux, stop
+
+    _, x, aux, stop = while_loop(cond, body, (jnp.asarray(0), x0, aux0, jnp.asarray(False)))
+    return x, aux, stop
 
 
 def newton_root(

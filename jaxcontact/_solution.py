@@ -13,6 +13,8 @@ from ._validate import branched_error_if
 
 __all__ = [
     "RESULTS",
+    "BEMDetails",
+    "BEMSolution",
     "ContactSolution",
     "ErrorEstimate",
     "FoundationDetails",
@@ -222,8 +224,32 @@ class FoundationDetails(eqx.Module):
         return out
 
 
+class BEMDetails(eqx.Module):
+    """What `bem_simulate` reports besides the curve and the events.
+
+    **Fields:**
+
+    - `cg_iterations`: constrained-CG iterations per sample, shape `(m,)`.
+    - `rounds`: rounds of the cell rule per sample, shape `(m,)`.
+    - `touches_edge`: whether the contact reached the outermost cells of the grid (the grid
+      is then too small; an error with `throw=True`).
+    - `drive`: the input history at `ts` (the indentation [m] under displacement control,
+      the drive position [m] under compliant loading, the force [N] under force control).
+    """
+
+    cg_iterations: Int[Array, " m"]
+    rounds: Int[Array, " m"]
+    touches_edge: Bool[Array, ""]
+    drive: Float[Array, " m"]
+
+    def legacy_stats(self, jumpoffs) -> dict:
+        """The keys of the former `BEMSolution.stats` dictionary."""
+        return dict(cg_iterations=self.cg_iterations, rounds=self.rounds,
+                    touches_edge=self.touches_edge, drive=self.drive)
+
+
 class ContactSolution(eqx.Module):
-    """The output of `retract` and `simulate`.
+    """The output of `retract`, `simulate` and (as its subclass `BEMSolution`) `bem_simulate`.
 
     All per-sample arrays have the shape of `ts` (shape `(n,)`; batch dimensions in front
     under `vmap`). Sign conventions: displacement positive into the sample, force positive
@@ -244,8 +270,8 @@ class ContactSolution(eqx.Module):
     - `jumpoff_displacement`: indentation at jump-off [m] (`nan` if no jump-off).
     - `jumpoffs`: number of jump-offs in the history (`retract`: 0 or 1).
     - `result`: a `RESULTS` item.
-    - `details`: a `RetractDetails` (from `retract`) or a `FoundationDetails` (from
-      `simulate`).
+    - `details`: a `RetractDetails` (from `retract`), a `FoundationDetails` (from
+      `simulate`) or a `BEMDetails` (from `bem_simulate`).
 
     With `throw=True` an error result raises whichever field is read (the check is attached
     to every array of the solution).
@@ -262,7 +288,7 @@ class ContactSolution(eqx.Module):
     jumpoff_displacement: Float[Array, ""]
     jumpoffs: Int[Array, ""]
     result: RESULTS
-    details: RetractDetails | FoundationDetails
+    details: RetractDetails | FoundationDetails | BEMDetails
 
     @property
     def detached(self) -> Array:
@@ -279,9 +305,56 @@ class ContactSolution(eqx.Module):
         """Deprecated: the former dictionary of statistics; use `details` (typed fields)
         and `jumpoffs`."""
         warnings.warn(
-            "`ContactSolution.stats` is deprecated: use the typed fields `details` and "
-            "`jumpoffs` (e.g. `sol.details.initial_radius`, `sol.details.cells`).",
+            f"`{type(self).__name__}.stats` is deprecated: use the typed fields `details` "
+            "and `jumpoffs` (e.g. `sol.details.initial_radius`, `sol.details.cells`, "
+            "`sol.details.touches_edge`).",
             DeprecationWarning,
             stacklevel=2,
         )
         return self.details.legacy_stats(self.jumpoffs)
+
+
+class BEMSolution(ContactSolution):
+    """The output of `bem_simulate`: a `ContactSolution` with the BEM's fields.
+
+    Per-sample arrays have the shape of `ts`, `(m,)`. Signs: displacement positive into the
+    sample, force compressive positive, adhesive negative. The fields of `ContactSolution`
+    mean here:
+
+    - `displacement`: the indentation $d$ [m] at `ts` (the input in displacement control;
+      solved in force control and with a compliant loading system). `nan` where a
+      prescribed tensile force has no equilibrium (force control after the jump-off).
+    - `force`: normal force $F = \\Delta^2\\sum p$ [N] carried by the contact (in force
+      control the input while in contact, 0 after the jump-off).
+    - `contact_radius`: equivalent radius $\\sqrt{A/\\pi}$ [m] of the contact area.
+    - `max_tensile_force`: the most negative force [N] of the samples and of the last
+      equilibrium before the jump-off.
+    - `jumpoff_time`, `jumpoff_displacement`, `jumpoff_force`, `jumpoff_radius`: time [s],
+      indentation [m], force [N] and equivalent radius [m] of the last equilibrium still in
+      contact before the first jump-off (the whole contact detaching in one cascade of the
+      cell rule), located by bisection of the input within the sample interval
+      (`refine_steps`); `nan` if the contact did not jump off.
+    - `jumpoffs`: the number of samples at which the contact was lost (it may touch again).
+    - `result`: `RESULTS.detached` (a jump-off happened), `RESULTS.in_contact` or
+      `RESULTS.solver_failed`.
+    - `details`: a `BEMDetails` (CG iterations, cell-rule rounds, `touches_edge`, `drive`).
+
+    **BEM fields:**
+
+    - `contact_area`: $\\Delta^2$ times the number of cells in contact [m²].
+    - `pressure`: cell pressures [Pa], shape `(m, n, n)`, if `save_fields=True`, else None.
+    - `attached`: cells in contact (bonded cells with adhesion), boolean `(m, n, n)`, if
+      `save_fields`, else None.
+
+    `stats` (the former dictionary: `cg_iterations`, `rounds`, `touches_edge`, `drive`) is
+    deprecated as for `ContactSolution`: use `details`.
+    """
+
+    contact_area: Float[Array, " m"]
+    pressure: Float[Array, "m n n"] | None
+    attached: Bool[Array, "m n n"] | None
+
+    @property
+    def detached(self) -> Array:
+        """Boolean: whether the contact jumped off within `ts`."""
+        return self.result == RESULTS.detached

@@ -1,4 +1,7 @@
-"""What every command shares: argument errors, number validation, output files and folders.
+"""What the commands share: argument errors, number validation, the model options of
+``simulate`` and ``sweep`` (`add_material_arguments`), output files and folders. The command
+modules (``_demo``, ``_simulate`` with its BEM part ``_simulate_bem``, ``_sweep``, ``_fit``)
+stand side by side over this module and never import each other.
 
 Output policy (all commands): nothing is written before the inputs are checked and the work
 is done; files are written under a temporary name beside the target and renamed into place
@@ -23,6 +26,7 @@ from collections.abc import Callable
 
 __all__ = [
     "UsageError",
+    "add_material_arguments",
     "check_number",
     "parse_assignments",
     "parse_profile",
@@ -63,6 +67,34 @@ def check_number(name: str, value, unit: str, *, low: float = 0.0, low_open: boo
         hi = f"{high:g}" if math.isfinite(high) else "inf"
         raise UsageError(f"argument {name}: must be a finite number in {left}{low:g}, {hi}"
                          f"{right} [{unit}]; got {value}")
+
+
+def add_material_arguments(p, *, radius_required: bool = True) -> None:
+    """The model options shared by the commands ``simulate`` and ``sweep``. `radius_required`: False
+    where another option can give the indenter (``simulate --profile``; then checked in
+    `check_args`)."""
+    p.add_argument("--G0", type=float, required=True, help="glass shear modulus [Pa]")
+    p.add_argument("--G1", type=float, required=True, help="Kelvin-element shear modulus [Pa]")
+    p.add_argument("--eta1", type=float, required=True, help="Kelvin-element viscosity [Pa s]")
+    p.add_argument("--work-of-adhesion", type=float, required=True, help="Δγ [J/m^2]")
+    p.add_argument("--radius", type=float, required=radius_required,
+                   help="indenter radius of curvature R [m] (a paraboloid, the sphere "
+                        "at small indentation)")
+    p.add_argument("--depth", type=float, required=True, help="indentation before the lift [m]")
+    p.add_argument("--velocity", type=float, required=True, help="lift speed [m/s], > 0")
+    p.add_argument("--hold", type=float, default=None, help="hold at --depth [s] (full history)")
+    p.add_argument(
+        "--approach-velocity", type=float, default=None,
+        help="approach speed [m/s] with --hold (default: --velocity)",
+    )
+    p.add_argument(
+        "--stiffness", type=float, default=None,
+        help=(
+            "stiffness of a compliant loading system (cantilever) [N/m], with --hold: the "
+            "approach-hold-lift history is then the drive position (0 where the undeflected "
+            "indenter touches) and displacement_m the indentation"
+        ),
+    )
 
 
 def parse_assignments(option: str, items, *, ranges: bool = False) -> dict:

@@ -7,7 +7,13 @@ import math
 import sys
 from pathlib import Path
 
-from ._common import UsageError, atomic_write_text, check_number, check_output_file
+from ._common import (
+    UsageError,
+    add_material_arguments,
+    atomic_write_text,
+    check_number,
+    check_output_file,
+)
 from ._simulate_bem import add_bem_arguments, check_bem_args, check_bem_extent, simulate_bem
 
 __all__ = ["add_parser", "run"]
@@ -40,34 +46,6 @@ def add_parser(sub, common) -> None:
         help="accept values far outside the usual range of their unit (e.g. a 1 km radius)",
     )
     p.set_defaults(func=run)
-
-
-def add_material_arguments(p, *, radius_required: bool = True) -> None:
-    """The model options shared by ``simulate`` and ``sweep``. `radius_required`: False
-    where another option can give the indenter (``simulate --profile``; then checked in
-    `check_args`)."""
-    p.add_argument("--G0", type=float, required=True, help="glass shear modulus [Pa]")
-    p.add_argument("--G1", type=float, required=True, help="Kelvin-element shear modulus [Pa]")
-    p.add_argument("--eta1", type=float, required=True, help="Kelvin-element viscosity [Pa s]")
-    p.add_argument("--work-of-adhesion", type=float, required=True, help="Δγ [J/m^2]")
-    p.add_argument("--radius", type=float, required=radius_required,
-                   help="indenter radius of curvature R [m] (a paraboloid, the sphere "
-                        "at small indentation)")
-    p.add_argument("--depth", type=float, required=True, help="indentation before the lift [m]")
-    p.add_argument("--velocity", type=float, required=True, help="lift speed [m/s], > 0")
-    p.add_argument("--hold", type=float, default=None, help="hold at --depth [s] (full history)")
-    p.add_argument(
-        "--approach-velocity", type=float, default=None,
-        help="approach speed [m/s] with --hold (default: --velocity)",
-    )
-    p.add_argument(
-        "--stiffness", type=float, default=None,
-        help=(
-            "stiffness of a compliant loading system (cantilever) [N/m], with --hold: the "
-            "approach-hold-lift history is then the drive position (0 where the undeflected "
-            "indenter touches) and displacement_m the indentation"
-        ),
-    )
 
 
 _UNITS = {"G0": "Pa", "G1": "Pa", "eta1": "Pa s", "work_of_adhesion": "J/m^2", "radius": "m",

@@ -163,12 +163,16 @@ def simulate_bem(args, t_sim, d_sim, rows):
         indenter = jc.Parabola(R=args.radius)
     else:
         indenter = jc.ellipsoid_heights(grid, args.profile[0], args.profile[1])
+    loading = jc.DisplacementControl()
+    if args.stiffness is not None:
+        # the history is then the drive position z(t), displacement_m the indentation
+        loading = jc.CompliantLoading(stiffness=args.stiffness)
     sol = jc.bem_simulate(
         rheology, indenter, args.work_of_adhesion, jnp.asarray(t_sim), jnp.asarray(d_sim),
-        grid=grid, stiffness=args.stiffness,
+        grid=grid, loading=loading,
         relaxed_depth=args.depth if args.hold is None else None, throw=False,
     )
-    if bool(sol.stats["touches_edge"]):
+    if bool(sol.details.touches_edge):
         raise UsageError(
             f"argument --extent: the contact reached the edge of the {extent:g} m square; "
             "give a larger --extent"

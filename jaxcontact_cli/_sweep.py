@@ -18,12 +18,12 @@ from pathlib import Path
 from ._common import (
     COMMIT_GUARD,
     UsageError,
+    add_material_arguments,
     check_number,
     check_output_file,
     note_written,
     temp_beside,
 )
-from ._simulate import add_material_arguments
 
 __all__ = ["add_parser", "run", "parse_range"]
 

@@ -119,3 +119,33 @@ def test_fit_each_reaches_the_shared_pipeline_through_public_internal_names():
                if isinstance(node, ast.ImportFrom) and node.level == 1
                for a in node.names if a.name.startswith("_")]
     assert private == []
+
+
+def _commands() -> set[str]:
+    """The command modules of the command line: those that define `add_parser`."""
+    out = set()
+    for name, path in _modules().items():
+        if not name.startswith("jaxcontact_cli."):
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        if any(isinstance(n, ast.FunctionDef) and n.name == "add_parser" for n in tree.body):
+            out.add(name)
+    return out
+
+
+def test_commands_stand_side_by_side():
+    # `simulate`, `sweep`, `fit`, `demo` share what they share through `_common` (and their
+    # own parts, e.g. `_simulate_bem`): no command reaches another through its imports
+    graph = _graph()
+    commands = _commands()
+    assert {"jaxcontact_cli._simulate", "jaxcontact_cli._sweep"} <= commands
+    bad = []
+    for c in sorted(commands):
+        seen, todo = set(), [c]
+        while todo:
+            for d in graph.get(todo.pop(), ()):
+                if d not in seen:
+                    seen.add(d)
+                    todo.append(d)
+        bad += [f"{c} reaches {d}" for d in sorted(seen & commands - {c})]
+    assert not bad, "commands importing commands:\n" + "\n".join(bad)

@@ -131,7 +131,7 @@ def _force_history():
 
 
 def _elastic(n, extent, inputs, **kw):
-    kw.setdefault("save_fields", "force" not in kw and "stiffness" not in kw)
+    kw.setdefault("save_fields", "loading" not in kw)
     ts = np.arange(M_ELASTIC, dtype=float)
     return jc.bem_simulate(jc.Elastic(E_STAR / 4), kw.pop("indenter", jc.Parabola(R)), DGAMMA,
                            ts, inputs, grid=jc.BEMGrid(n, extent), **kw)
@@ -146,7 +146,7 @@ def adhesive_runs():
 @pytest.fixture(scope="module")
 def force_run():
     _, force, a1 = _force_history()
-    return _elastic(32, 2.4 * a1, None, force=force)
+    return _elastic(32, 2.4 * a1, force, loading=jc.ForceControl())
 
 
 def test_adhesive_sphere_pulloff_converges_to_jkr(adhesive_runs):
@@ -208,13 +208,19 @@ def test_force_control_pulloff_against_jkr(force_run):
                                atol=1e-8 * np.abs(force).max())
 
 
+def _compliant_drive(force_run):
+    """The drive of the compliant runs: to 1.2 x the deepest indentation under force
+    control, then back to -3 x it."""
+    d_max = float(np.nanmax(force_run.displacement))
+    return np.concatenate([np.linspace(0, 1.2 * d_max, 15),
+                           np.linspace(1.2 * d_max, -3 * d_max, 60)])
+
+
 def test_compliant_loading_between_force_and_displacement_control(force_run):
     _, _, a1 = _force_history()
-    d_max = float(np.nanmax(force_run.displacement))
-    z = np.concatenate([np.linspace(0, 1.2 * d_max, 15), np.linspace(1.2 * d_max, -3 * d_max,
-                                                                     60)])
+    z = _compliant_drive(force_run)
     k = 200.0  # N/m; the contact stiffness 2 a E* is about 200 N/m at the pull-off
-    s = _elastic(32, 2.4 * a1, z, stiffness=k)
+    s = _elastic(32, 2.4 * a1, z, loading=jc.CompliantLoading(k))
     assert bool(s.detached)
     d, F = np.asarray(s.displacement), np.asarray(s.force)
     inside = np.asarray(s.contact_area) > 0
@@ -228,6 +234,58 @@ def test_compliant_loading_between_force_and_displacement_control(force_run):
     jump = float(s.jumpoff_force) / F_FC
     assert 5 / 9 < jump < float(force_run.jumpoff_force) / F_FC
     assert jump == pytest.approx(0.759, rel=0.15)
+    # the deprecated keyword builds the same loading system: the same numbers, and a warning
+    # that names the replacement
+    with pytest.warns(DeprecationWarning, match=r"loading=jaxcontact\.CompliantLoading"):
+        old = _elastic(32, 2.4 * a1, z, stiffness=k, save_fields=False)
+    for name in ("displacement", "force", "contact_area", "jumpoff_force", "jumpoff_time"):
+        np.testing.assert_array_equal(getattr(old, name), getattr(s, name))
+
+
+@pytest.mark.slow
+def test_compliant_loading_agrees_with_simulate(force_run):
+    # the same loading object drives both models (simulate: 33 s CPU to compile, hence
+    # slow; the default run checks the BEM's spring against the deprecated keyword and
+    # k (z - d) = F above)
+    _, _, a1 = _force_history()
+    z = _compliant_drive(force_run)
+    loading = jc.CompliantLoading(200.0)
+    bem = _elastic(32, 2.4 * a1, z, loading=loading)
+    mdr = jc.simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA,
+                      np.arange(M_ELASTIC, dtype=float), z, loading=loading)
+    # the approach is non-adhesive in both (cells and springs attach when they touch): the
+    # same Hertz branch through the same spring (measured: force within 0.5 %, indentation
+    # within 0.05 % at 32 cells)
+    np.testing.assert_allclose(bem.force[1:16], mdr.force[1:16], rtol=0.01)
+    np.testing.assert_allclose(bem.displacement[1:16], mdr.displacement[1:16], rtol=2e-3)
+    # the jump-off: the MDR model meets the JKR value where dF/dd = -k (-0.759 x 3/2 pi
+    # dgamma R, computed from the JKR curve); the 32-cell grid overshoots it at first order
+    # (+7 % here), as it overshoots force control's -3/2 pi dgamma R (+23 %)
+    assert float(mdr.jumpoff_force) / F_FC == pytest.approx(0.759, rel=0.01)
+    ratio = float(bem.jumpoff_force) / float(mdr.jumpoff_force) - 1
+    assert 0 < ratio < float(force_run.jumpoff_force) / F_FC - 1
+    assert float(bem.jumpoff_time) == pytest.approx(float(mdr.jumpoff_time), rel=0.05)
+
+
+def test_force_control_loading_equals_the_deprecated_keyword(force_run):
+    _, force, a1 = _force_history()
+    with pytest.warns(DeprecationWarning, match=r"loading=jaxcontact\.ForceControl"):
+        old = _elastic(32, 2.4 * a1, None, force=force, save_fields=False)
+    for name in ("displacement", "force", "contact_area", "jumpoff_force", "jumpoff_time"):
+        np.testing.assert_array_equal(getattr(old, name), getattr(force_run, name))
+    # one solution type: the BEM's is a ContactSolution; its `stats` dictionary is deprecated
+    # as ContactSolution's, in favour of the typed `details`
+    assert isinstance(force_run, jc.ContactSolution)
+    assert isinstance(force_run.details, jc.BEMDetails)
+    assert int(force_run.jumpoffs) == 1  # lost once, never touched again (a dead load)
+    with pytest.warns(DeprecationWarning, match=r"BEMSolution\.stats` is deprecated"):
+        stats = force_run.stats
+    np.testing.assert_array_equal(stats["cg_iterations"], force_run.details.cg_iterations)
+    assert bool(stats["touches_edge"]) is False
+    # a dead load is an input of the BEM only: simulate says so and names the alternative
+    with pytest.raises(ValueError, match="CompliantLoading"):
+        jc.simulate(jc.Elastic(E_STAR / 4), jc.Parabola(R), DGAMMA, [0.0, 1.0], [0.0, 1e-6],
+                    loading=jc.ForceControl())
 
 
 # --------------------------------------------------------------------------------------
@@ -352,13 +410,24 @@ def test_input_validation():
     with pytest.raises(ValueError, match="exactly one of `displacement`"):
         jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, grid=grid)
     with pytest.raises(ValueError, match="force"):
-        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, force=[np.nan], grid=grid)
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [np.nan], grid=grid,
+                        loading=jc.ForceControl())
     with pytest.raises(ValueError, match="stiffness"):
         jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, force=[1.0], stiffness=1.0,
                         grid=grid)
     with pytest.raises(ValueError, match="stiffness"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], grid=grid,
+                        loading=jc.CompliantLoading(-1.0))
+    with pytest.warns(DeprecationWarning, match="CompliantLoading"), pytest.raises(
+            ValueError, match="stiffness"):
         jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], stiffness=-1.0,
                         grid=grid)
+    with pytest.raises(ValueError, match="not both"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], stiffness=1.0,
+                        grid=grid, loading=jc.CompliantLoading(1.0))
+    with pytest.raises(TypeError, match="loading"):
+        jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], grid=grid,
+                        loading="compliant")
     with pytest.raises(ValueError, match="relaxed_depth"):
         jc.bem_simulate(jc.Elastic(1e6), jc.Parabola(R), 0.1, ts1, [1e-6], relaxed_depth=0.0,
                         grid=grid)
@@ -369,7 +438,7 @@ def test_input_validation():
     disp = np.full(M_ELASTIC, 4 * A_FC**2 / R)
     with pytest.raises(Exception, match="edge of the grid"):
         _elastic(32, 2 * A_FC, disp)
-    assert bool(_elastic(32, 2 * A_FC, disp, throw=False).stats["touches_edge"])
+    assert bool(_elastic(32, 2 * A_FC, disp, throw=False).details.touches_edge)
 
 
 def test_forward_mode_derivative_matches_finite_difference():

@@ -95,7 +95,7 @@ def test_hold_and_stiffness_match_library(tmp_path, capsys):
     k = 1000.0
     cols, events = _run(tmp_path, capsys, common + ["--stiffness", str(k)])
     ref = jc.bem_simulate(jc.StandardModel(**SOLID), jc.Parabola(R), DGAMMA, ts, d, grid=grid,
-                          stiffness=k)
+                          loading=jc.CompliantLoading(k))
     _check_against(cols, events, ref)
     assert bool(ref.detached)
     inside = cols["contact_radius_m"] > 0

@@ -100,6 +100,8 @@ Persson-Brener); do not validate it against those.
 from ._loading import AbstractLoading as AbstractLoading
 from ._loading import CompliantLoading as CompliantLoading
 from ._loading import DisplacementControl as DisplacementControl
+from ._loading import ForceControl as ForceControl
+from ._loading import SpringEquation as SpringEquation
 from ._options import DEFAULT_CELLS as DEFAULT_CELLS
 from ._options import FoundationGrid as FoundationGrid
 from ._simulate import simulate as simulate

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -17,19 +18,70 @@ from .._validate import Constraint
 from ._state import JumpOff
 
 
+class SpringEquation(eqx.Module):
+    r"""The equation that fixes the indentation under a loading system with a spring.
+
+    At a sample with input $x$ the indentation $d$ solves
+    $$r(d) = F(d) + k\,d - c\,x = 0,$$
+    with $F(d)$ the contact force [N] (compressive positive): a spring of stiffness $k$
+    between the drive $z = x$ and the indenter has $c = k$ ($k(d - z) + F = 0$,
+    `CompliantLoading`); a dead load $F = x$ has $k = 0$, $c = 1$ (`ForceControl`). The one
+    home of this equation: `simulate` (`CompliantLoading.step`) and `bem_simulate` solve it
+    with `_root.newton_iterate`.
+
+    **Fields:**
+
+    - `spring`: $k$ [N/m] (or [N/m] over a force unit, see `scaled`), >= 0.
+    - `gain`: $c$, the factor of the input ($k$ for a drive position [m], 1 for a force [N]).
+    """
+
+    spring: Float[Array, ""]
+    gain: Float[Array, ""]
+
+    def residual(self, force, depth, x):
+        """$r = F + k d - c x$ [N] of the force `force` [N] at the indentation `depth` [m]
+        for the input `x`; increasing in `depth` wherever the contact's $dF/dd > -k$.
+        Evaluated as $k(d - x) + F - (c - k)x$: a spring's extension without cancellation
+        (the last term vanishes for a spring, $c = k$)."""
+        return self.spring * (depth - x) + force - (self.gain - self.spring) * x
+
+    def slope(self, contact_stiffness):
+        """$dr/dd = dF/dd + k$ [N/m] for the contact's stiffness $dF/dd$ [N/m]."""
+        return contact_stiffness + self.spring
+
+    def target(self, x):
+        r"""$c\,x$ [N]: the force the contact carries where the indenter does not move."""
+        return self.gain * x
+
+    def scaled(self, unit):
+        """The same equation with forces in units of `unit` [N] (both sides divided)."""
+        return SpringEquation(self.spring / unit, self.gain / unit)
+
+
 class AbstractLoading(eqx.Module):
     """How the input history drives the indenter (`docs/physics.md` §6).
 
     A loading system turns the sampled input into the indentation at every sample
     (`step`), bounds the indentation the grid must cover (`grid_depth`), refines the
-    jump-off inside its step (`refine_jumpoff`) and states the domain of its parameters
-    (`domain`). Subclasses implement all of them; `simulate` calls them and never asks for
-    the type.
+    jump-off inside its step (`refine_jumpoff`), states the domain of its parameters
+    (`domain`) and the equation that fixes the indentation (`spring_equation`, the one that
+    `bem_simulate` solves). Subclasses implement all of them; `simulate` and `bem_simulate`
+    call them and never ask for the type. `input_name`, `input_unit` and `input_kind` (the
+    `PLAUSIBLE` kind, None: unchecked) describe the input history in messages.
     """
+
+    input_name: ClassVar[str] = "displacement"
+    input_unit: ClassVar[str] = "m"
+    input_kind: ClassVar[str | None] = "length"
 
     @abc.abstractmethod
     def domain(self) -> tuple[Constraint, ...]:
         """The parameters and their allowed ranges (checked eagerly and per lane)."""
+
+    @abc.abstractmethod
+    def spring_equation(self) -> SpringEquation | None:
+        """The `SpringEquation` that fixes the indentation at a sample, or None where the
+        input is the indentation itself (displacement control)."""
 
     @abc.abstractmethod
     def grid_depth(self, rheology, profile, drive_max):
@@ -57,6 +109,9 @@ class DisplacementControl(AbstractLoading):
 
     def domain(self):
         return ()
+
+    def spring_equation(self):
+        return None
 
     def grid_depth(self, rheology, profile, drive_max):
         return drive_max
@@ -100,6 +155,9 @@ class CompliantLoading(AbstractLoading):
     def domain(self):
         return (Constraint("stiffness", self.stiffness, "N/m", kind="stiffness"),)
 
+    def spring_equation(self):
+        return SpringEquation(self.stiffness, self.stiffness)
+
     def grid_depth(self, rheology, profile, drive_max):
         if profile.touch_coordinate().covers_contact:
             return drive_max
@@ -115,9 +173,10 @@ class CompliantLoading(AbstractLoading):
         # theorem); where it does not converge in contact the contact is taken as lost
         k = self.stiffness
         d0 = state.depth
+        equation = self.spring_equation()
 
         def f(d1):
-            return k * (d1 - z1) + model.step(state, t0, t1, d1, P)[1].force
+            return equation.residual(model.step(state, t0, t1, d1, P)[1].force, d1, z1)
 
         guess = d0 + (z1 - z0) * k / (k + jnp.maximum(stiffness, 0.0))
         d1 = newton_root(f, guess, steps=self.newton_steps, slope_floor=0.05 * k,
@@ -191,6 +250,43 @@ class CompliantLoading(AbstractLoading):
             force=jnp.where(use_i, inst.force, j_force),
             valid=refined | use_v | use_i,
         )
+
+
+class ForceControl(AbstractLoading):
+    r"""A dead load: the input is the applied force $F(t)$ [N] (compressive positive).
+
+    The indentation is the one at which the contact carries the load. Under a tensile load
+    the contact jumps off where no equilibrium connected to the current one carries it (for
+    an elastic sphere at $-\tfrac32\pi\Delta\gamma R$). An input of `bem_simulate` only:
+    the foundation model (`simulate`) takes a dead load as a soft spring,
+    `CompliantLoading(k)` driven to $z = F/k$ with $k$ well below the contact stiffness.
+    """
+
+    input_name: ClassVar[str] = "force"
+    input_unit: ClassVar[str] = "N"
+    input_kind: ClassVar[str | None] = None  # a force has no plausible range of its own
+
+    def domain(self):
+        return ()
+
+    def spring_equation(self):
+        return SpringEquation(jnp.zeros(()), jnp.ones(()))
+
+    def _foundation(self):
+        raise ValueError(
+            "`loading=ForceControl()` (a dead load) is an input of `bem_simulate` only; "
+            "`simulate` takes a dead load F(t) as a soft spring: `CompliantLoading(k)` with "
+            "the drive z = F/k and k well below the contact stiffness."
+        )
+
+    def grid_depth(self, rheology, profile, drive_max):
+        self._foundation()
+
+    def step(self, model, state, t0, t1, z0, z1, P, stiffness, depth):
+        self._foundation()
+
+    def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force):
+        self._foundation()
 
 
 def _compliant_depth(rheology, profile, stiffness, z_max):

@@ -22,7 +22,7 @@ from .._foundation._loading import (
 )
 from .._rheology import AbstractRheology
 from .._solution import RESULTS, BEMDetails, BEMSolution
-from .._solvers import as_float, float64_scope, floats_to_arrays, safe_div
+from .._solvers import as_float, cast_floats, float64_scope, float_dtype, floats_to_arrays, safe_div
 from .._validate import (
     check_domain_plausible,
     check_finite,
@@ -144,7 +144,10 @@ def bem_simulate(
         adhesive = bool(np.asarray(work_of_adhesion) > 0)
     chain = rheology.to_creep_chain()
     rounds = grid.cells * grid.cells if max_rounds is None else int(max_rounds)
-    dtype = ts.dtype
+    # the precision of the history and the material (float32 when every one of them is
+    # float32); the grid and the heights follow it, as the other forward models do
+    dtype = float_dtype(ts, inputs, chain)
+    chain, h, ts, inputs, grid = cast_floats((chain, h, ts, inputs, grid), dtype)
     # the start and the loading's spring equation are traced values (one compiled program
     # serves a relaxed and a virgin start, force control and every spring); displacement
     # control compiles without the Newton loop on the depth
@@ -256,8 +259,11 @@ def _bem_simulate_plain(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displac
     bisection steps of the jump-off: the solver appears once in the compiled program."""
     n, m = grid.cells, ts.shape[0]
     delta = grid.cell_size
+    # the kernel from the grid (float64 under the float64 scope) in the inputs' precision,
+    # so that a float32 history stays float32 in every loop carry
     khat = _kernel_hat(n, delta)
-    k00 = love_displacement(0.0, 0.0, 0.5 * delta, 0.5 * delta)
+    khat = khat.astype(jnp.result_type(ts.dtype, jnp.complex64))
+    k00 = love_displacement(0.0, 0.0, 0.5 * delta, 0.5 * delta).astype(ts.dtype)
     G0, Gk, eta = chain.G0, chain.G, chain.eta
     theta = eta / Gk
     sigma_c = cell_critical_stress(delta, dgamma, 4 * G0)  # the glass E* = 4 G0

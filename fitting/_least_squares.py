@@ -431,11 +431,10 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
     def result(s):
         return _solution(solver, s, keep_jacobian)
 
-    def collect(work, tasks, out, queued, written):
-        # the lanes whose problem has finished: written out and refilled from the queue.
-        # Done at the top of the next iteration (and once after the loop), from the carried
-        # state: written from the step's output, XLA fused the Jacobian's computation into
-        # both the scatter and the carry, i.e. computed it twice a step
+    def body(c):
+        work, tasks, out, queued, written = c
+        ctx = _take(ctxs, jnp.minimum(tasks, n_tasks - 1))
+        work = jax.vmap(step)(work, ctx)
         finished = (tasks < n_tasks) & work.done
         slot = jnp.where(finished, tasks, n_tasks)  # out of range: dropped
         out = jax.tree.map(lambda o, x: o.at[slot].set(x, mode="drop"), out,
@@ -450,15 +449,6 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         n_fin = jnp.sum(finished)
         return work, tasks, out, queued + n_fin, written + n_fin
 
-    def body(c):
-        work, tasks, out, queued, written = collect(*c)
-        ctx = _take(ctxs, jnp.minimum(tasks, n_tasks - 1))
-        return jax.vmap(step)(work, ctx), tasks, out, queued, written
-
-    def cond(c):  # some problem is neither written nor finished
-        work, tasks, _, _, written = c
-        return written + jnp.sum((tasks < n_tasks) & work.done) < n_tasks
-
     init = (_take(states0, jnp.arange(w)), jnp.arange(w), jax.vmap(result)(states0),
             jnp.asarray(w), jnp.asarray(0))
-    return collect(*jax.lax.while_loop(cond, body, init))[2]
+    return jax.lax.while_loop(lambda c: c[4] < n_tasks, body, init)[2]

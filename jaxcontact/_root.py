@@ -71,11 +71,22 @@ def _solve(fn, lo, hi, steps, dtype):
     inf = jnp.full_like(mid, jnp.inf)
 
     def cond(carry):
-        i, _, _, _, _, done = carry
+        i, _, _, _, _, done, _ = carry
         return (i < steps) & jnp.logical_not(done)
 
     def body(carry):
-        i, lo, hi, x, prev_step, done = carry
+        i, lo, hi, x, prev_step, done, (before, before2) = carry
+        # round-off can trap the iteration: where f is quantised (its round-off exceeds f'
+        # times the distance of neighbouring points) Newton from each of two adjacent points
+        # of opposite sign may land on the other, or a bisection round to its end. The body
+        # is a function of the state (lo, hi, x, prev_step) alone, so once the state is the
+        # one of two iterations before, it alternates between two states until `steps`
+        # (the loop ran to `steps`, and under vmap every lane waited): stop with the x that
+        # the last iteration would have left (the same result). Compared are carried values
+        # only (XLA may compute a value twice, in two kernels, not always to the same bits).
+        state = (lo, hi, x, prev_step)
+        periodic = _same(state, before2)
+        x_periodic = jnp.where((steps - i) % 2 == 0, x, before[2])
         fx, dfx = jax.jvp(fn, (x,), (jnp.ones_like(x),))
         # `fn` may close over arrays of a wider dtype: the carry keeps the bracket's
         fx, dfx = fx.astype(dtype), dfx.astype(dtype)
@@ -118,13 +129,23 @@ def _solve(fn, lo, hi, steps, dtype):
             i + 1,
             keep(lo, lo_n),
             keep(hi, hi_n),
-            keep(x, x_new),
+            keep(x, jnp.where(periodic, x_periodic, x_new)),
             keep(prev_step, jnp.where(inside, step, inf)),
-            done | stop,
+            done | stop | periodic,
+            jax.tree.map(keep, (before, before2), (state, before)),
         )
 
-    carry = (jnp.asarray(0), lo, hi, x0, inf, done0)
+    nan = (jnp.full_like(mid, jnp.nan),) * 4  # no earlier state: equal to none
+    carry = (jnp.asarray(0), lo, hi, x0, inf, done0, (nan, nan))
     return while_loop(cond, body, carry)[3]
+
+
+def _same(a, b):
+    """Bitwise-equal states (tuples of arrays; NaN equals nothing)."""
+    out = jnp.asarray(True)
+    for x, y in zip(a, b, strict=True):
+        out = out & (x == y)
+    return out
 
 
 def bracketed_root(

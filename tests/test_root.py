@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 
 from jaxcontact._root import bracketed_root
 
@@ -110,3 +111,52 @@ def test_root_within_round_off_of_a_bracket_end():
     y = -0.4768613102600593
     x = bracketed_root(lambda t: 1.0 - t - y, 0.0, 1.0 - y, steps=3)
     assert float(x) == pytest.approx(1.0 - y, rel=1e-15)
+
+
+# a lift's effective displacement minus its jump-off value, d0 - v u + w exp(-u/tau) - h
+# (the jump-off time of `retract`): terms of ~1e-6 m cancel, so f is quantised at ~1e-22 m,
+# more than f' times the spacing of neighbouring u. Newton from each of two adjacent points
+# of opposite sign lands on the other; the loop alternated between them until `steps`
+# (64 evaluations, and under vmap every lane waited: 50-60 % of the fitting Jacobian's time)
+_TRAPPED = [(9.468129517344518e-07, 2.487418279480424e-06, 2.4376626276230124e-07,
+             0.3915858526232482, 1.166448411710508e-06)]
+
+
+def test_trapped_by_round_off_stops_early_with_the_full_loops_answer():
+    evaluations = [0]
+
+    def tick(_):
+        evaluations[0] += 1
+
+    def lift(d0, v, w, tau, h, *, count=False):
+        def f(u):
+            if count:
+                jax.debug.callback(tick, u)
+            return d0 - v * u + w * jnp.exp(-u / tau) - h
+        return f
+
+    for case in _TRAPPED:
+        got = {}
+        for steps in (62, 63, 64):
+            evaluations[0] = 0
+            got[steps] = float(jax.jit(
+                lambda c, s=steps: bracketed_root(lift(*c, count=True), 0.0, 0.03, steps=s))(
+                    case))
+            # the two regula-falsi ends and a handful of Newton steps, not `steps`
+            assert evaluations[0] <= 14, (steps, evaluations[0])
+        # the loop would alternate between two adjacent points that bracket the root (the
+        # root to round-off): `steps` of either parity give the one the full loop ends on
+        a, b = got[63], got[64]
+        assert a != b and got[62] == b
+        assert abs(a - b) <= 1e-13 * abs(b)
+        # both are the root to round-off (a second method: numpy's float64 and Brent)
+        root = brentq(lambda u, c=case: c[0] - c[1] * u + c[2] * np.exp(-u / c[3]) - c[4],
+                      0.0, 0.03, xtol=1e-30, rtol=1e-15)
+        assert abs(a - root) <= 1e-13 * root and abs(b - root) <= 1e-13 * root
+        # every lane of a vmap stops early too, with the same answers
+        evaluations[0] = 0
+        lanes = jax.jit(jax.vmap(
+            lambda *c: bracketed_root(lift(*c, count=True), 0.0, 0.03, steps=64)))(
+                *[jnp.asarray([v, v]) for v in case])
+        assert evaluations[0] <= 2 * 14
+        assert [float(x) for x in lanes] == [b, b]

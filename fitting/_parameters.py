@@ -70,7 +70,7 @@ class Parameterisation(eqx.Module):
     def internal(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
         """Internal coordinates $u$ of all parameters at the free vector `z` (traceable)."""
         val = self._internal(jnp, z)[-1]
-        return self.reference.at[jnp.asarray(self.free, dtype=int)].set(val)
+        return jnp.asarray(self.reference).at[jnp.asarray(self.free, dtype=int)].set(val)
 
     def internal_host(self, z) -> np.ndarray:
         """:meth:`internal` in numpy on the host (`z`: shape `(k,)` or `(..., k)`)."""
@@ -155,12 +155,15 @@ def make_parameterisation(
     fixed: Mapping[str, float] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     scales: Mapping[str, float] | None = None,
+    host: bool = False,
 ) -> Parameterisation:
     """Parameterisation for the parameters `info` (:func:`fitting._spec.parameter_info`).
 
     `reference`: natural values (the reference point; a fixed parameter's value comes
     from `fixed`). `bounds`: `{name: (lower, upper)}` natural (positive for the log
-    parameters). `scales`: $s$ of the linear parameters (default 1).
+    parameters). `scales`: $s$ of the linear parameters (default 1). `host`: keep the
+    arrays in numpy (for parameterisations stacked later, e.g. a chunk of
+    :func:`fitting.fit_each`: one transfer to the device per chunk, not one per curve).
     """
     names = [n for n, _, _ in info]
     is_log = tuple(not kind.startswith("offset") for _, _, kind in info)
@@ -196,6 +199,7 @@ def make_parameterisation(
     u = np.where(is_log, np.log(np.where(is_log, ref, 1.0)), ref / scale)
     # a reference outside its bounds starts at the nearest bound (inside, by the clip of z_of)
     u = np.clip(u, lo, hi)
-    reference, sc, lower, upper = jax.device_put((u, scale, lo, hi))
+    reference, sc, lower, upper = (u, scale, lo, hi) if host else \
+        jax.device_put((u, scale, lo, hi))
     return Parameterisation(free=free, log=is_log, reference=reference, scale=sc,
                             lower=lower, upper=upper)

@@ -476,8 +476,11 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
        the global search of all starts of the chunk, then the local rounds
        (:func:`_local_search`), each one call of :func:`solve_batch` on
        ``batch.lanes(...)`` lanes over ``batch.devices``.
-    3. **Finish** each problem's best start (:func:`_finish`: uncertainty, $R^2$,
-       warnings).
+    3. **Finish** each problem's best start: the device work of a chunk in one compiled
+       call (:func:`_finish_chunk`: the model at the optimum, the derived quantities and
+       Tabor's parameter with their gradients, vmapped over the chunk's problems, padded
+       to the chunk size), then per problem on the host (:func:`_finish`: uncertainty,
+       $R^2$, warnings, the :class:`FitResult`).
 
     `show(message)`: the stages of each problem (`None`: silent); `progress(stage, done)`:
     after each chunk. `warn`: issue the last model's warnings (the chain's earlier steps
@@ -603,9 +606,12 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
 
 def _stack(trees, repeat: int):
     """One pytree with a leading problem axis: each of `trees` repeated `repeat` times."""
-    host = [jax.device_get(t) for t in trees]
-    return jax.device_put(jax.tree.map(lambda *x: np.repeat(np.stack(x), repeat, axis=0),
-                                       *host))
+    # flattened once each (the problems' arrays are in numpy), one transfer for all
+    treedef = jax.tree.structure(trees[0])
+    leaves = [jax.tree.leaves(t) for t in trees]
+    stacked = [np.repeat(np.stack([np.asarray(row[i]) for row in leaves]), repeat, axis=0)
+               for i in range(len(leaves[0]))]
+    return jax.device_put(jax.tree.unflatten(treedef, stacked))
 
 
 def _best_point(pb: _Problem, out: Solution):
@@ -784,8 +790,9 @@ def _sort_arms(spec, param, u, J):
 
 def _validity_warnings(spec, curves, validity) -> list[str]:
     """The model-validity warnings of a fit of `curves`; `validity`: the largest contact
-    radius of the model [m] and the probe's limit there (:func:`jc.profile_validity`:
-    valid, fraction, limit, reason; computed per chunk by :func:`_finish_chunk`)."""
+    radius of the model [m], the probe's limit there (:func:`jc.profile_validity`: valid,
+    fraction, limit [m], reason) and the profile's class name (computed per chunk by
+    :func:`_finish_chunk`)."""
     out = []
     a_max, valid, fraction, limit, reason, profile = validity
     if not valid:

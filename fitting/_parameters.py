@@ -16,6 +16,7 @@ there, and no standard error is given for it.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 
@@ -34,6 +35,20 @@ __all__ = ["Parameterisation", "make_parameterisation", "AT_BOUND"]
 
 #: Fraction of the bounded span within which a parameter is reported at its bound.
 AT_BOUND = 1e-4
+
+
+class _host_method:
+    """A method of the host path (numpy, called per start and per curve): accessed on an
+    instance it is a plain `functools.partial`, not the equinox bound method (a module
+    built at every access, ~0.1 ms, which dominated the per-curve host work of a force
+    map). Not for functions passed to JAX transformations."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, owner=None):
+        return self.fn if obj is None else functools.partial(self.fn, obj)
 
 
 class Parameterisation(eqx.Module):
@@ -74,6 +89,7 @@ class Parameterisation(eqx.Module):
         val = Parameterisation._internal(self, jnp, z)[-1]
         return jnp.asarray(self.reference).at[jnp.asarray(self.free, dtype=int)].set(val)
 
+    @_host_method
     def internal_host(self, z) -> np.ndarray:
         """:meth:`internal` in numpy on the host (`z`: shape `(k,)` or `(..., k)`)."""
         z = np.asarray(z, dtype=float)
@@ -83,6 +99,7 @@ class Parameterisation(eqx.Module):
         out[..., list(self.free)] = val
         return out
 
+    @_host_method
     def dinternal_dz(self, z) -> np.ndarray:
         r"""$\mathrm du_i/\mathrm dz_i$ of the free parameters at `z` (numpy, shape of
         `z`): $(h - l)\,\sigma(z)(1 - \sigma(z))$ when bounded, 1 otherwise."""
@@ -94,6 +111,7 @@ class Parameterisation(eqx.Module):
         is_log = jnp.asarray(self.log)
         return jnp.where(is_log, jnp.exp(jnp.where(is_log, u, 0.0)), u * self.scale)
 
+    @_host_method
     def to_natural_host(self, u) -> np.ndarray:
         """:meth:`to_natural` in numpy on the host."""
         u = np.asarray(u, dtype=float)
@@ -104,6 +122,7 @@ class Parameterisation(eqx.Module):
         """Natural parameters at the free vector `z`."""
         return self.to_natural(self.internal(z))
 
+    @_host_method
     def to_internal(self, p) -> np.ndarray:
         """Internal coordinates of natural parameters `p` (numpy)."""
         p = np.asarray(p, dtype=float)
@@ -112,12 +131,14 @@ class Parameterisation(eqx.Module):
             return np.where(is_log, np.log(np.where(is_log, p, 1.0)),
                             p / np.asarray(self.scale))
 
+    @_host_method
     def dnatural(self, u) -> np.ndarray:
         """$\\mathrm dp/\\mathrm du$ per parameter ($p$ for log ones, $s$ for linear)."""
         u = np.asarray(u, dtype=float)
         return np.where(np.asarray(self.log), np.exp(np.where(self.log, u, 0.0)),
                         np.asarray(self.scale))
 
+    @_host_method
     def z_of(self, u) -> np.ndarray:
         """Free vector of internal coordinates `u` (clipped strictly inside the bounds;
         `u`: shape `(p,)` or `(..., p)`)."""
@@ -134,6 +155,7 @@ class Parameterisation(eqx.Module):
             out = np.where(bounded, np.log(s) - np.log1p(-s), out)
         return out
 
+    @_host_method
     def at_bound(self, u) -> list[str | None]:
         """Per parameter: "lower", "upper" (saturated at that bound) or None."""
         u = np.asarray(u, dtype=float)

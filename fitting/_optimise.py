@@ -607,8 +607,12 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
 def _stack(trees, repeat: int):
     """One pytree with a leading problem axis: each of `trees` repeated `repeat` times."""
     # flattened once each (the problems' arrays are in numpy), one transfer for all
-    treedef = jax.tree.structure(trees[0])
-    leaves = [jax.tree.leaves(t) for t in trees]
+    flat = [jax.tree.flatten(t) for t in trees]
+    treedef = flat[0][1]
+    if any(d != treedef for _, d in flat[1:]):  # e.g. other free parameters: no one batch
+        raise ValueError("the problems of a chunk differ in structure (e.g. which "
+                         "parameters are free); they cannot be stacked into one batch")
+    leaves = [lv for lv, _ in flat]
     stacked = [np.repeat(np.stack([np.asarray(row[i]) for row in leaves]), repeat, axis=0)
                for i in range(len(leaves[0]))]
     return jax.device_put(jax.tree.unflatten(treedef, stacked))

@@ -86,7 +86,7 @@ from ._prepare import (
     select_fit_segments,
     stack_batches,
 )
-from ._quality import assess, check_contact_signal, r_squared
+from ._quality import assess, check_contact_signal, r_squared, tabor_fn
 from ._result import FitResult, ModelChoice
 from ._spec import (
     ModelSpec,
@@ -105,7 +105,12 @@ from ._start import (
     nested_starts,
     search_starts,
 )
-from ._uncertainty import IdentifiabilityWarning, ModelValidityWarning, gauss_newton
+from ._uncertainty import (
+    IdentifiabilityWarning,
+    ModelValidityWarning,
+    derived_fn,
+    gauss_newton,
+)
 
 __all__ = ["fit", "solve", "solve_batch", "identify", "Identified"]
 
@@ -224,7 +229,22 @@ def _model_at(spec, param, u, data):
     return sol, point, effective_force(sol, data) + f0
 
 
-def _compile_in_background(fn, *args) -> threading.Thread:
+@functools.partial(jax.jit, static_argnames=("tabor",))
+def _evaluate_chunk(spec, params, us, ps, datas, radius, *, tabor):
+    """The finish's device work of a chunk in one compiled call, vmapped over its problems
+    (leading axis of `params`, `us` [internal], `ps` [natural], `datas`): the model at the
+    optimum (:func:`_model_at`: solution, model force, force as fitted), the derived
+    quantities with their Jacobian (:func:`fitting._uncertainty.derived_fn`) and, with
+    `tabor` (the index of the work of adhesion; `None`: not computed), Tabor's parameter at
+    `radius` [m] with its gradient (:func:`fitting._quality.tabor_fn`)."""
+    model = jax.vmap(_model_at, in_axes=(None, 0, 0, 0))(spec, params, us, datas)
+    derived = jax.vmap(derived_fn(spec)[1])(ps)
+    mu = None if tabor is None else jax.vmap(tabor_fn(spec, tabor), in_axes=(0, None))(
+        ps, radius)
+    return model, derived, mu
+
+
+def _compile_in_background(fn, *args, **kwargs) -> threading.Thread:
     """Call the jitted `fn(*args)` once in a thread, so that its compilation (XLA compiles
     outside the GIL) overlaps the search's; a later call with equally shaped arguments
     finds it compiled. Join the thread before that call. An error is left for that call
@@ -232,7 +252,7 @@ def _compile_in_background(fn, *args) -> threading.Thread:
 
     def run():
         try:
-            jax.block_until_ready(fn(*args))
+            jax.block_until_ready(fn(*args, **kwargs))
         except Exception:  # noqa: BLE001 - the real call reports it
             pass
 
@@ -352,7 +372,7 @@ def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
     bnds.update(normalise_names(o.bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
                                   scales={"contact_offset": scales.depth,
-                                          "force_offset": scales.force_range})
+                                          "force_offset": scales.force_range}, host=True)
     zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
                                        for s in starts]))
     return _Problem(spec, info, names, param, data, zs, curves, notes)
@@ -475,8 +495,11 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
        the global search of all starts of the chunk, then the local rounds
        (:func:`_local_search`), each one call of :func:`solve_batch` on
        ``batch.lanes(...)`` lanes over ``batch.devices``.
-    3. **Finish** each problem's best start (:func:`_finish`: uncertainty, $R^2$,
-       warnings).
+    3. **Finish** each problem's best start: the device work of a chunk in one compiled
+       call (:func:`_finish_chunk`: the model at the optimum, the derived quantities and
+       Tabor's parameter with their gradients, vmapped over the chunk's problems, padded
+       to the chunk size), then per problem on the host (:func:`_finish`: uncertainty,
+       $R^2$, warnings, the :class:`FitResult`).
 
     `show(message)`: the stages of each problem (`None`: silent); `progress(stage, done)`:
     after each chunk. `warn`: issue the last model's warnings (the chain's earlier steps
@@ -519,11 +542,11 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         idx = list(problems)
         spec = problems[idx[0]].spec
         _pad(problems)
-        pb0 = problems[idx[0]]  # the finish's forward model compiles during the search
-        model_at = _compile_in_background(
-            _model_at, pb0.spec, pb0.param, jnp.asarray(pb0.param.internal_host(pb0.zs[0])),
-            pb0.data)
+        pb0 = problems[idx[0]]
         size = min(batch.chunk, len(idx))
+        # the finish's device work compiles during the search
+        args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options)
+        model_at = _compile_in_background(_evaluate_chunk, *args, **kw)
         n_z = len(pb0.zs)
         for c0 in range(0, len(idx), size):
             part = idx[c0:c0 + size]
@@ -534,16 +557,19 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
             t_search = time.perf_counter() - t0
             timings["optimise"] += t_search
             t0 = time.perf_counter()
-            for g, out in zip(part, outs, strict=True):
+            pres = _finish_chunk([problems[g] for g in part], outs, size, options, failed)
+            for g, out, pre in zip(part, outs, pres, strict=True):
                 pb = problems[g]
                 stage = {"prepare": prepared[g], "optimise": t_search}  # the chunk's
                 try:
+                    if isinstance(pre, BaseException):
+                        raise pre
                     with warnings.catch_warnings():
                         if not last:  # a step of the chain: its warnings are not the result's
                             warnings.simplefilter("ignore", IdentifiabilityWarning)
                             warnings.simplefilter("ignore", ModelValidityWarning)
-                        res = _finish(pb, out, options, show=say, warn=warn and last,
-                                      timings=stage, t_start=started[g])
+                        res = _finish(pb, out, options, pre, show=say,
+                                      warn=warn and last, timings=stage, t_start=started[g])
                 except failed as exc:
                     errors[g] = _message(exc)
                     continue
@@ -599,36 +625,114 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
 
 def _stack(trees, repeat: int):
     """One pytree with a leading problem axis: each of `trees` repeated `repeat` times."""
-    host = [jax.device_get(t) for t in trees]
-    return jax.device_put(jax.tree.map(lambda *x: np.repeat(np.stack(x), repeat, axis=0),
-                                       *host))
+    # flattened once each (the problems' arrays are in numpy), one transfer for all
+    flat = [jax.tree.flatten(t) for t in trees]
+    treedef = flat[0][1]
+    if any(d != treedef for _, d in flat[1:]):  # e.g. other free parameters: no one batch
+        raise ValueError("the problems of a chunk differ in structure (e.g. which "
+                         "parameters are free); they cannot be stacked into one batch")
+    leaves = [lv for lv, _ in flat]
+    stacked = [np.repeat(np.stack([np.asarray(row[i]) for row in leaves]), repeat, axis=0)
+               for i in range(len(leaves[0]))]
+    return jax.device_put(jax.tree.unflatten(treedef, stacked))
 
 
-def _finish(pb: _Problem, out: Solution, options: FitOptions, *, show, warn, timings,
-            t_start) -> FitResult:
-    """The :class:`FitResult` of problem `pb` from the search's :class:`Solution` `out`
-    (every start; its `r`, `J` if kept, J with respect to z)."""
-    spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
-    t0 = time.perf_counter()
-    z_all, chi2_all, steps_all = (np.asarray(x) for x in (out.z, out.chi2, out.steps))
-    ok_all = np.asarray(out.converged)
-    finite = np.isfinite(chi2_all)
-    best = int(np.argmin(np.where(finite, chi2_all, np.inf)))
+def _best_point(pb: _Problem, out: Solution):
+    """Problem `pb`'s best start of the search `out`: its index, its internal coordinates
+    `u` (Prony arms sorted) and the residuals `r` and their Jacobian `J` with respect to
+    the free internal coordinates there (the search's own, else computed)."""
+    spec, param = pb.spec, pb.param
+    z_all, chi2_all = np.asarray(out.z), np.asarray(out.chi2)
+    best = int(np.argmin(np.where(np.isfinite(chi2_all), chi2_all, np.inf)))
     z = z_all[best]
     u = param.internal_host(z)
     dudz = param.dinternal_dz(z)
     if out.J is not None and np.all(np.abs(dudz) > 1e-8):
         r, J = np.asarray(out.r[best]), np.asarray(out.J[best]) / dudz[None, :]
     else:
-        r, J = (np.asarray(x) for x in internal_jacobian(spec, param, jnp.asarray(u), data))
+        r, J = (np.asarray(x) for x in internal_jacobian(spec, param, jnp.asarray(u), pb.data))
     u, J = _sort_arms(spec, param, u, J)
-    order = np.argsort(np.where(finite, chi2_all, np.inf))
+    return best, u, r, J
+
+
+def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions):
+    """Arguments and keywords of :func:`_evaluate_chunk` for `problems` at internal
+    coordinates `us`, padded to `size` problems (the last one repeated): one compilation
+    serves every chunk."""
+    fill = list(range(len(problems))) + [len(problems) - 1] * (size - len(problems))
+    profile = options.probe
+    radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
+    pb0 = problems[0]
+    us = np.stack([np.asarray(us[j], dtype=float) for j in fill])
+    ps = np.stack([problems[j].param.to_natural_host(us[i]) for i, j in enumerate(fill)])
+    args = (pb0.spec, _stack([problems[j].param for j in fill], 1), jnp.asarray(us),
+            jnp.asarray(ps), _stack([problems[j].data for j in fill], 1),
+            0.0 if radius is None else radius)
+    tabor = pb0.names.index("work_of_adhesion") if radius is not None else None
+    return args, {"tabor": tabor}
+
+
+def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
+                  options: FitOptions, failed=()) -> list:
+    """What :func:`_finish` needs of each problem's best start, for a chunk of equally
+    shaped `problems` at once (:func:`_evaluate_chunk`, padded to `size` problems; the
+    probe's validity at every curve's largest contact radius in one call): per problem
+    a dict, or the exception (one of `failed`) that its preparation raised. A chunk whose
+    joint evaluation raises one of `failed` is evaluated problem by problem, so that a
+    failure stays with its problem."""
+    out: list = [None] * len(problems)
+    ok = []
+    for j, (pb, o) in enumerate(zip(problems, outs, strict=True)):
+        try:
+            out[j] = {"best": _best_point(pb, o)}
+            ok.append(j)
+        except failed as exc:
+            out[j] = exc
+    if not ok:
+        return out
+    try:
+        args, kw = _chunk_inputs([problems[j] for j in ok], [out[j]["best"][1] for j in ok],
+                                 size, options)
+        model, derived, mu = jax.device_get(_evaluate_chunk(*args, **kw))
+    except failed as exc:
+        if len(ok) == 1:
+            out[ok[0]] = exc
+            return out
+        for j in ok:  # one by one: the failure is the failing problem's
+            one = _finish_chunk([problems[j]], [outs[j]], 1, options, failed)[0]
+            out[j] = one
+        return out
+    profile = options.probe
+    a_max = []
+    for i, j in enumerate(ok):
+        valid = np.asarray(problems[j].data.valid) > 0
+        radius = np.asarray(model[0].contact_radius[i])
+        a_max.append(float(np.nanmax(np.where(valid, radius, 0.0))))
+    check = jax.device_get(jc.profile_validity(profile, np.asarray(a_max)))
+    for i, j in enumerate(ok):
+        out[j].update(
+            model=jax.tree.map(lambda x, i=i: x[i], model),
+            evaluated=((derived[0][i], derived[1][i]),
+                       None if mu is None else (mu[0][i], mu[1][i])),
+            validity=(a_max[i], bool(check.valid[i]), float(check.fraction[i]),
+                      float(check.limit), check.reason, type(profile).__name__))
+    return out
+
+
+def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show, warn,
+            timings, t_start) -> FitResult:
+    """The :class:`FitResult` of problem `pb` from the search's :class:`Solution` `out`
+    (every start; its `r`, `J` if kept, J with respect to z) and what
+    :func:`_finish_chunk` computed for its chunk (`pre`)."""
+    spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
+    chi2_all, steps_all = np.asarray(out.chi2), np.asarray(out.steps)
+    ok_all = np.asarray(out.converged)
+    best, u, r, J = pre["best"]
+    order = np.argsort(np.where(np.isfinite(chi2_all), chi2_all, np.inf))
     show(f"search: chi2 of the best starts {', '.join(f'{chi2_all[i]:.6g}' for i in order[:4])}"
          f"; {RESULTS.describe(out.result[best])}, {int(steps_all[best])} steps "
          f"({len(chi2_all)} starts, {int(np.sum(steps_all))} steps in all)")
-    sol, model_force, fitted_force = jax.device_get(
-        _model_at(spec, param, jnp.asarray(u), data))
-    timings["optimise"] = timings.get("optimise", 0.0) + time.perf_counter() - t0
+    sol, model_force, fitted_force = pre["model"]
 
     t0 = time.perf_counter()
     p = param.to_natural_host(u)
@@ -646,7 +750,7 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, *, show, warn, tim
     ll = n * math.log(max(chi2, 1e-300) / n)
     curves, profile = pb.curves, options.probe  # as fitted: the chosen segments
     msgs = list(unc.warnings)
-    msgs += _validity_warnings(spec, curves, profile, radius_model, valid)
+    msgs += _validity_warnings(spec, curves, pre["validity"])
     if warn:
         for m in msgs[len(unc.warnings):]:
             warn_at_caller(m, ModelValidityWarning)
@@ -673,7 +777,8 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, *, show, warn, tim
         parameterisation=param, optimiser=options.optimiser, start_steps=steps_all,
         warnings=msgs, timings=timings,
     )
-    flagged = assess(result, max_steps=options.max_steps)  # quality per segment, flags, convergence
+    # quality per segment, flags, convergence, derived quantities
+    flagged = assess(result, max_steps=options.max_steps, evaluated=pre["evaluated"])
     if warn:
         for m in flagged:
             warn_at_caller(m, ModelValidityWarning)
@@ -706,14 +811,17 @@ def _sort_arms(spec, param, u, J):
     return u[perm], J[:, [col[perm[i]] for i in free]]
 
 
-def _validity_warnings(spec, curves, profile, radius_model, valid) -> list[str]:
+def _validity_warnings(spec, curves, validity) -> list[str]:
+    """The model-validity warnings of a fit of `curves`; `validity`: the largest contact
+    radius of the model [m], the probe's limit there (:func:`jc.profile_validity`: valid,
+    fraction, limit [m], reason) and the profile's class name (computed per chunk by
+    :func:`_finish_chunk`)."""
     out = []
-    a_max = float(np.nanmax(np.where(valid, radius_model, 0.0)))
-    check = jc.profile_validity(profile, a_max)  # the profile's own limit (every profile)
-    if not bool(check.valid):
-        out.append(f"the model's contact radius reaches {a_max:.3g} m, {float(check.fraction):.2f} "
-                   f"times the limit {float(check.limit):.3g} m of the {type(profile).__name__} "
-                   f"profile: {check.reason}; check the probe")
+    a_max, valid, fraction, limit, reason, profile = validity
+    if not valid:
+        out.append(f"the model's contact radius reaches {a_max:.3g} m, {fraction:.2f} "
+                   f"times the limit {limit:.3g} m of the {profile} "
+                   f"profile: {reason}; check the probe")
     # a curve whose approach was measured but not held: the relaxed start is contradicted by
     # the curve itself (a retract-only curve says nothing about how the contact was made)
     # (a loader's inferred one-sample "approach" at the top of a pure lift is no approach)

@@ -16,6 +16,7 @@ there, and no standard error is given for it.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 
@@ -36,6 +37,20 @@ __all__ = ["Parameterisation", "make_parameterisation", "AT_BOUND"]
 AT_BOUND = 1e-4
 
 
+class _host_method:
+    """A method of the host path (numpy, called per start and per curve): accessed on an
+    instance it is a plain `functools.partial`, not the equinox bound method (a module
+    built at every access, ~0.1 ms, which dominated the per-curve host work of a force
+    map). Not for functions passed to JAX transformations."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, owner=None):
+        return self.fn if obj is None else functools.partial(self.fn, obj)
+
+
 class Parameterisation(eqx.Module):
     """Free vector ↔ internal coordinates ↔ natural parameters (see the module docstring).
 
@@ -54,6 +69,8 @@ class Parameterisation(eqx.Module):
     upper: Float[Array, " p"]
 
     def _internal(self, xp, z):
+        # (called as `Parameterisation._internal(self, ...)`: an equinox bound method is a
+        # module built at every access, ~0.1 ms on the host path of every curve)
         # one transform for jax.numpy (traced, differentiable) and numpy (host: no
         # dispatch of eager device operations, ~0.1 ms each, per start and per curve)
         idx = list(self.free)
@@ -69,22 +86,24 @@ class Parameterisation(eqx.Module):
 
     def internal(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
         """Internal coordinates $u$ of all parameters at the free vector `z` (traceable)."""
-        val = self._internal(jnp, z)[-1]
-        return self.reference.at[jnp.asarray(self.free, dtype=int)].set(val)
+        val = Parameterisation._internal(self, jnp, z)[-1]
+        return jnp.asarray(self.reference).at[jnp.asarray(self.free, dtype=int)].set(val)
 
+    @_host_method
     def internal_host(self, z) -> np.ndarray:
         """:meth:`internal` in numpy on the host (`z`: shape `(k,)` or `(..., k)`)."""
         z = np.asarray(z, dtype=float)
-        val = self._internal(np, z)[-1]
+        val = Parameterisation._internal(self, np, z)[-1]
         out = np.broadcast_to(np.asarray(self.reference), z.shape[:-1] + (len(self.log),))
         out = out.copy()
         out[..., list(self.free)] = val
         return out
 
+    @_host_method
     def dinternal_dz(self, z) -> np.ndarray:
         r"""$\mathrm du_i/\mathrm dz_i$ of the free parameters at `z` (numpy, shape of
         `z`): $(h - l)\,\sigma(z)(1 - \sigma(z))$ when bounded, 1 otherwise."""
-        bounded, lo, hi, sig, _ = self._internal(np, np.asarray(z, dtype=float))
+        bounded, lo, hi, sig, _ = Parameterisation._internal(self, np, np.asarray(z, dtype=float))
         return np.where(bounded, (hi - lo) * sig * (1.0 - sig), 1.0)
 
     def to_natural(self, u: Float[Array, " p"]) -> Float[Array, " p"]:
@@ -92,6 +111,7 @@ class Parameterisation(eqx.Module):
         is_log = jnp.asarray(self.log)
         return jnp.where(is_log, jnp.exp(jnp.where(is_log, u, 0.0)), u * self.scale)
 
+    @_host_method
     def to_natural_host(self, u) -> np.ndarray:
         """:meth:`to_natural` in numpy on the host."""
         u = np.asarray(u, dtype=float)
@@ -102,6 +122,7 @@ class Parameterisation(eqx.Module):
         """Natural parameters at the free vector `z`."""
         return self.to_natural(self.internal(z))
 
+    @_host_method
     def to_internal(self, p) -> np.ndarray:
         """Internal coordinates of natural parameters `p` (numpy)."""
         p = np.asarray(p, dtype=float)
@@ -110,12 +131,14 @@ class Parameterisation(eqx.Module):
             return np.where(is_log, np.log(np.where(is_log, p, 1.0)),
                             p / np.asarray(self.scale))
 
+    @_host_method
     def dnatural(self, u) -> np.ndarray:
         """$\\mathrm dp/\\mathrm du$ per parameter ($p$ for log ones, $s$ for linear)."""
         u = np.asarray(u, dtype=float)
         return np.where(np.asarray(self.log), np.exp(np.where(self.log, u, 0.0)),
                         np.asarray(self.scale))
 
+    @_host_method
     def z_of(self, u) -> np.ndarray:
         """Free vector of internal coordinates `u` (clipped strictly inside the bounds;
         `u`: shape `(p,)` or `(..., p)`)."""
@@ -132,6 +155,7 @@ class Parameterisation(eqx.Module):
             out = np.where(bounded, np.log(s) - np.log1p(-s), out)
         return out
 
+    @_host_method
     def at_bound(self, u) -> list[str | None]:
         """Per parameter: "lower", "upper" (saturated at that bound) or None."""
         u = np.asarray(u, dtype=float)
@@ -155,12 +179,15 @@ def make_parameterisation(
     fixed: Mapping[str, float] | None = None,
     bounds: Mapping[str, tuple[float, float]] | None = None,
     scales: Mapping[str, float] | None = None,
+    host: bool = False,
 ) -> Parameterisation:
     """Parameterisation for the parameters `info` (:func:`fitting._spec.parameter_info`).
 
     `reference`: natural values (the reference point; a fixed parameter's value comes
     from `fixed`). `bounds`: `{name: (lower, upper)}` natural (positive for the log
-    parameters). `scales`: $s$ of the linear parameters (default 1).
+    parameters). `scales`: $s$ of the linear parameters (default 1). `host`: keep the
+    arrays in numpy (for parameterisations stacked later, e.g. a chunk of
+    :func:`fitting.fit_each`: one transfer to the device per chunk, not one per curve).
     """
     names = [n for n, _, _ in info]
     is_log = tuple(not kind.startswith("offset") for _, _, kind in info)
@@ -196,6 +223,7 @@ def make_parameterisation(
     u = np.where(is_log, np.log(np.where(is_log, ref, 1.0)), ref / scale)
     # a reference outside its bounds starts at the nearest bound (inside, by the clip of z_of)
     u = np.clip(u, lo, hi)
-    reference, sc, lower, upper = jax.device_put((u, scale, lo, hi))
+    reference, sc, lower, upper = (u, scale, lo, hi) if host else \
+        jax.device_put((u, scale, lo, hi))
     return Parameterisation(free=free, log=is_log, reference=reference, scale=sc,
                             lower=lower, upper=upper)

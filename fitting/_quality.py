@@ -264,10 +264,13 @@ def check_contact_signal(curves, spec) -> None:
                 "segments") from None
 
 
-def assess(result, *, max_steps: int | None = None) -> list[str]:
+def assess(result, *, max_steps: int | None = None, evaluated=None) -> list[str]:
     """Fill the quality fields of a :class:`FitResult` (`r_squared_unweighted`,
     `segments`, `flags`, `convergence`, `stderr_scale`, `derived`) and return the new warning
-    messages (also appended to `result.warnings`)."""
+    messages (also appended to `result.warnings`). `evaluated`: ``(derived, tabor)``, the
+    values and gradients of :func:`fitting._uncertainty.derived_fn` and :func:`tabor_fn` at
+    ``result.values`` when already computed (a chunk of curves in one call), else `None`."""
+    derived_at, tabor_at = (None, None) if evaluated is None else evaluated
     data = result.data
     valid = np.asarray(data.valid) > 0
     result.r_squared_unweighted = r_squared(result.model_force, data.force, None, valid)
@@ -309,9 +312,9 @@ def assess(result, *, max_steps: int | None = None) -> list[str]:
                                   + "; ".join(result.convergence["advice"]))
     result.flags = flags
     result.derived = derived_quantities(result.spec, result.values, result.covariance,
-                                        result.status)
+                                        result.status, evaluated=derived_at)
     tabor = tabor_entry(result.spec, result.values, result.covariance, result.status,
-                        result.radius, result.names)
+                        result.radius, result.names, evaluated=tabor_at)
     if tabor is not None:
         result.derived.append(tabor)
         # only a determined mu: with the work of adhesion not determined (e.g. bounded only
@@ -328,7 +331,8 @@ def assess(result, *, max_steps: int | None = None) -> list[str]:
     return new
 
 
-def tabor_entry(spec, p, covariance, status, radius, names) -> dict | None:
+def tabor_entry(spec, p, covariance, status, radius, names, *, evaluated=None
+                ) -> dict | None:
     r"""Tabor's parameter of a fit as a derived quantity (module docstring, "Validity"):
     a dict like those of :func:`fitting._uncertainty.derived_quantities` (``name``
     "tabor_mu", ``unit`` "1", ``value``, ``stderr``, ``status``, ``definition``), or None for
@@ -338,7 +342,8 @@ def tabor_entry(spec, p, covariance, status, radius, names) -> dict | None:
     paraboloid's $R$ [m]); with `radius` None (other profiles) the value is NaN and the
     status "not defined". The standard error is the delta method's over the free
     parameters (NaN, status "not determined", when one of them is not determined or at a
-    bound).
+    bound). `evaluated`: the value and gradient of :func:`tabor_fn` at `p` and `radius`
+    when already computed, else `None`.
     """
     k = list(names).index("work_of_adhesion")
     p = np.asarray(p, dtype=float)
@@ -352,7 +357,8 @@ def tabor_entry(spec, p, covariance, status, radius, names) -> dict | None:
                 "status": "not defined",
                 "definition": definition + "; not defined: the profile has no fitted radius "
                 "of curvature (sphere or paraboloid only)"}
-    value, grad = _tabor_and_gradient(spec, k)(np.asarray(p, float), float(radius))
+    value, grad = tabor_fn(spec, k)(np.asarray(p, float), float(radius)) \
+        if evaluated is None else evaluated
     value, grad, radius = float(value), np.asarray(grad), float(radius)
     used = [j for j in range(len(p)) if grad[j] != 0 and status[j] != "fixed"]
     ok = all(status[j] == "ok" for j in used)
@@ -400,7 +406,7 @@ def warn_summary(results) -> None:
 
 
 @functools.lru_cache(maxsize=16)
-def _tabor_and_gradient(spec, k: int):
+def tabor_fn(spec, k: int):
     """Tabor's parameter and its gradient w.r.t. the parameter vector, compiled once per
     model (an eager `jax.jacfwd` per curve cost ~0.1 s a curve of a map on a GPU)."""
     import jax

@@ -20,6 +20,7 @@ offsets take any sign and are fitted linearly (:class:`fitting._parameters.Param
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -139,7 +140,17 @@ def make_spec(model: str = "relaxed", rheology: str = "standard", *,
               compliant: bool = False, cells: int = 32, contact_offset: bool = False,
               force_offset: bool = False) -> ModelSpec:
     """Parse and check the model choice (`rheology` is "standard", "prony:N" with N in
-    [1, 8], or "elastic"; see :data:`RHEOLOGIES`)."""
+    [1, 8], or "elastic"; see :data:`RHEOLOGIES`). One object per choice (made once: every
+    curve of a map shares it)."""
+    try:
+        return _make_spec(model, rheology, compliant, cells, contact_offset, force_offset)
+    except TypeError:  # unhashable arguments: checked (and refused) uncached
+        return _make_spec.__wrapped__(model, rheology, compliant, cells, contact_offset,
+                                      force_offset)
+
+
+@functools.lru_cache(maxsize=64)
+def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset) -> ModelSpec:
     if model not in ("relaxed", "history"):
         raise ValueError(f"model must be 'relaxed' or 'history'; got {model!r}")
     name, colon, arg = rheology.partition(":") if isinstance(rheology, str) else ("", "", "")

@@ -75,6 +75,7 @@ time can grow.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping, Sequence
 
@@ -235,7 +236,13 @@ def default_bounds(spec: ModelSpec, s: DataScales) -> dict[str, tuple[float, flo
 
 def latin_hypercube(n: int, dim: int, *, seed: int = 0, designs: int = 20) -> np.ndarray:
     """`n` points in $[0, 1)^\\mathrm{dim}$: the best of `designs` Latin hypercubes by the
-    smallest distance between two points (deterministic for a given seed)."""
+    smallest distance between two points (deterministic for a given seed; computed once
+    per arguments: every curve of a map draws the same design, a new array each call)."""
+    return _latin_hypercube(int(n), int(dim), int(seed), int(designs)).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _latin_hypercube(n: int, dim: int, seed: int, designs: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     k = max(1, designs)
     # the random numbers in the order of one design after the other (a permutation key of

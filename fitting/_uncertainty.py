@@ -193,7 +193,7 @@ def _bound_value(param, i, which) -> float:
 POISSON = 0.5
 
 
-def derived_quantities(spec, p, covariance, status) -> list[dict]:
+def derived_quantities(spec, p, covariance, status, *, evaluated=None) -> list[dict]:
     r"""Quantities derived from the natural parameters `p` with their standard errors by
     the delta method ($\sigma_f^2 = \nabla f^\top C\,\nabla f$ over the free parameters,
     $\nabla f$ by forward-mode differentiation; a fixed parameter contributes nothing).
@@ -205,6 +205,9 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
     ($\eta_1/(G_0+G_1)$, the relaxation time at fixed strain). Elastic: ``E``. Prony series: ``G_0``
     (glass modulus $G_\infty + \sum G_k$), ``E_0``, ``E_inf``, ``E_k``.
 
+    `evaluated`: the values and Jacobian of :func:`derived_fn` at `p` when already computed
+    (e.g. for a chunk of curves in one call: :func:`fitting._optimise.identify`).
+
     **Returns:** one dict per quantity: ``name``, ``unit``, ``value``, ``stderr`` (nan when
     a parameter it depends on is not determined or at a bound), ``status`` ("ok" or "not
     determined"), ``definition``.
@@ -212,8 +215,8 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
     from ._spec import parameter_info
 
     names = [n for n, _, _ in parameter_info(spec)]
-    rows, fn = _derived_fn(spec)
-    values, grad = fn(np.asarray(p, dtype=float))
+    rows, fn = derived_fn(spec)
+    values, grad = fn(np.asarray(p, dtype=float)) if evaluated is None else evaluated
     values, grad = np.asarray(values), np.asarray(grad)
     cov = np.asarray(covariance, dtype=float)
     out = []
@@ -235,7 +238,7 @@ def derived_quantities(spec, p, covariance, status) -> list[dict]:
 
 
 @functools.lru_cache(maxsize=16)
-def _derived_fn(spec):
+def derived_fn(spec):
     """The rows of :func:`derived_quantities` for `spec` and a function of the parameter
     vector returning their values and Jacobian, compiled once per model (eagerly, the
     forward-mode Jacobian cost ~70 ms a curve of a force map)."""

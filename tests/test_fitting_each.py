@@ -314,3 +314,42 @@ def test_four_devices_match_one(curves):
     for k, r in enumerate(one.results):
         assert got["chi2"][k] == pytest.approx(r.chi2, rel=1e-9)
         np.testing.assert_allclose(got["values"][k], r.values, rtol=1e-6)
+
+
+def test_batched_finish_equals_the_per_curve_finish(curves):
+    # the finish of a chunk is one compiled call over its curves (the model at the optimum,
+    # the derived quantities and Tabor's parameter with their gradients) and one check of
+    # the probe's validity: each curve's numbers equal those computed for it alone, with
+    # statuses kept per curve; here a chunk of a curve whose eta1 the data do not determine
+    # (a lift 1,000 times slower than the relaxation: the creep is over before it starts)
+    # beside a determined one, and a failed curve beside them
+    import jax.numpy as jnp
+
+    from fitting._objective import predict
+    from fitting._quality import tabor_entry
+    from fitting._uncertainty import derived_quantities
+
+    slow = _curve(POINTS[0], v=2e-9, seed=7, grid=(2, 2))
+    failed = fitting.FailedCurve("map.jpk-force-map", 5, "no contact found on the approach")
+    res = _quiet(fitting.fit_each, [slow, curves[0], failed], radius=R, n_starts=STARTS,
+                 chunk=2, progress=False)
+    assert res.results[2] is None and "no contact found" in res.errors[2]
+    eta = res.names.index("eta1")
+    assert res.results[0].status[eta] == "not determined"
+    assert res.results[1].status[eta] == "ok"
+    for r in res.results[:2]:
+        derived = {d["name"]: d for d in r.derived}
+        alone = derived_quantities(r.spec, r.values, r.covariance, r.status)
+        alone.append(tabor_entry(r.spec, r.values, r.covariance, r.status, r.radius, r.names))
+        assert sorted(derived) == sorted(d["name"] for d in alone)
+        for d in alone:
+            got = derived[d["name"]]
+            assert got["status"] == d["status"], d["name"]
+            np.testing.assert_allclose([got["value"], got["stderr"]],
+                                       [d["value"], d["stderr"]], rtol=1e-12)
+        model = np.asarray(predict(r.spec, jnp.asarray(r.values), r.data).force)
+        np.testing.assert_allclose(r.model_force, np.where(np.isfinite(model), model, 0.0),
+                                   rtol=1e-12, atol=1e-12 * np.max(np.abs(model)))
+    # eta1 not determined: the relaxation time it enters is not determined either
+    assert {d["name"]: d for d in res.results[0].derived}["tau"]["status"] == "not determined"
+    assert {d["name"]: d for d in res.results[1].derived}["tau"]["status"] == "ok"

@@ -26,7 +26,7 @@ def test_readme_lists_every_notebook():
 
 
 def test_stored_outputs_belong_to_the_current_sources():
-    # without running them (the runs of 04 and 05 are in the extended run, `-m slow`): a
+    # without running them (the runs of 03, 04, 05 and 06 are in the extended run, `-m slow`): a
     # notebook edited without re-storing its outputs fails here in the default run
     for p in NOTEBOOKS:
         check_stored(p.name)

@@ -259,8 +259,8 @@ def _bem_simulate_plain(chain, h, dgamma, ts, inputs, grid, relaxed, d0, displac
     bisection steps of the jump-off: the solver appears once in the compiled program."""
     n, m = grid.cells, ts.shape[0]
     delta = grid.cell_size
-    # the kernel from the grid (float64 under the float64 scope) in the inputs' precision,
-    # so that a float32 history stays float32 in every loop carry
+    # the kernel in the history's precision (its construction promotes to float64 under the
+    # float64 scope even from a float32 grid), so that every loop carry keeps that precision
     khat = _kernel_hat(n, delta)
     khat = khat.astype(jnp.result_type(ts.dtype, jnp.complex64))
     k00 = love_displacement(0.0, 0.0, 0.5 * delta, 0.5 * delta).astype(ts.dtype)

@@ -41,46 +41,49 @@ R, D0, V = 12e-6, 1e-6, 2e-6
 BASE = {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 1e-3}
 
 
-def make_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
+def _noisy_map(n: int, seed: int, force_of) -> list[fitting.Curve]:
+    """`n` curves of parameters varying by up to ±30 % around `BASE`, 1 % noise:
+    `force_of(p)` gives `(ts, displacement, force, segment, segment_names)`."""
     rng = np.random.default_rng(seed)
     side = int(np.ceil(np.sqrt(n)))
     out = []
     for i in range(n):
         p = {k: v * rng.uniform(0.7, 1.3) for k, v in BASE.items()}
-        ts = np.linspace(0.0, 3e-6 / V, samples)
-        sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
-                         work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=V)
-        f = np.asarray(sol.force)
-        f = f + 0.01 * np.ptp(f) * rng.standard_normal(samples)
+        ts, disp, f, seg, names = force_of(p)
+        f = f + 0.01 * np.ptp(f) * rng.standard_normal(ts.size)
         out.append(fitting.Curve(
-            time=ts, displacement=np.asarray(sol.displacement), force=f,
-            segment=np.zeros(samples, int), segment_names=("retract",),
+            time=ts, displacement=disp, force=f, segment=seg, segment_names=names,
             metadata={"grid index x": i % side, "grid index y": i // side}))
     return out
+
+
+def make_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
+    """Retract curves from a relaxed contact (`jc.retract`) at constant speed."""
+    ts = np.linspace(0.0, 3e-6 / V, samples)
+
+    def force_of(p):
+        sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
+                         work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=V)
+        return (ts, np.asarray(sol.displacement), np.asarray(sol.force),
+                np.zeros(samples, int), ("retract",))
+
+    return _noisy_map(n, seed, force_of)
 
 
 def make_history_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
     """QI-like approach-retract curves without a hold (`jc.simulate`, full history): the
-    indentation rises linearly to `D0` and falls back to -0.5 `D0` (the probe detaches),
-    1 % noise, the parameters of `make_map`."""
-    rng = np.random.default_rng(seed)
-    side = int(np.ceil(np.sqrt(n)))
+    indentation rises linearly to `D0` and falls back to -0.5 `D0` (the probe detaches)."""
     half = samples // 2
     ts = np.linspace(0.0, 2 * D0 / V * 1.25, samples)
     d = np.r_[np.linspace(0.0, D0, half), np.linspace(D0, -0.5 * D0, samples - half)]
     seg = np.r_[np.zeros(half, int), np.ones(samples - half, int)]
-    out = []
-    for i in range(n):
-        p = {k: v * rng.uniform(0.7, 1.3) for k, v in BASE.items()}
+
+    def force_of(p):
         sol = jc.simulate(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
                           p["work_of_adhesion"], ts, d)
-        f = np.asarray(sol.force)
-        f = f + 0.01 * np.ptp(f) * rng.standard_normal(samples)
-        out.append(fitting.Curve(
-            time=ts, displacement=d, force=f, segment=seg,
-            segment_names=("approach", "retract"),
-            metadata={"grid index x": i % side, "grid index y": i // side}))
-    return out
+        return ts, d, np.asarray(sol.force), seg, ("approach", "retract")
+
+    return _noisy_map(n, seed, force_of)
 
 
 def main(argv=None):

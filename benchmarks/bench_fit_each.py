@@ -41,16 +41,27 @@ R, D0, V = 12e-6, 1e-6, 2e-6
 BASE = {"G0": 10e3, "G1": 5e3, "eta1": 7.5e3, "work_of_adhesion": 1e-3}
 
 
-def _noisy_map(n: int, seed: int, force_of) -> list[fitting.Curve]:
+def _noisy_map(n: int, seed: int, force_of=None, *, samples: int | None = None,
+               forces_of=None) -> list[fitting.Curve]:
     """`n` curves of parameters varying by up to ±30 % around `BASE`, 1 % noise:
-    `force_of(p)` gives `(ts, displacement, force, segment, segment_names)`."""
+    `force_of(p)` gives `(ts, displacement, force, segment, segment_names)` of one curve;
+    or `forces_of(P)` those of all (`P`: arrays of `n` values; the force `(n, samples)`)."""
     rng = np.random.default_rng(seed)
     side = int(np.ceil(np.sqrt(n)))
-    out = []
-    for i in range(n):
+    draws = []
+    for _ in range(n):  # the draws in the order of one curve after the other
         p = {k: v * rng.uniform(0.7, 1.3) for k, v in BASE.items()}
-        ts, disp, f, seg, names = force_of(p)
-        f = f + 0.01 * np.ptp(f) * rng.standard_normal(ts.size)
+        draws.append((p, rng.standard_normal(samples) if samples is not None else rng))
+    if forces_of is not None:
+        ts, disp, force, seg, names = forces_of({k: np.array([p[k] for p, _ in draws])
+                                                for k in BASE})
+        each = [(ts, disp, force[i], seg, names) for i in range(n)]
+    out = []
+    for i, (p, noise) in enumerate(draws):
+        ts, disp, f, seg, names = each[i] if forces_of is not None else force_of(p)
+        if samples is None:
+            noise = rng.standard_normal(ts.size)
+        f = f + 0.01 * np.ptp(f) * noise
         out.append(fitting.Curve(
             time=ts, displacement=disp, force=f, segment=seg, segment_names=names,
             metadata={"grid index x": i % side, "grid index y": i // side}))
@@ -58,32 +69,41 @@ def _noisy_map(n: int, seed: int, force_of) -> list[fitting.Curve]:
 
 
 def make_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
-    """Retract curves from a relaxed contact (`jc.retract`) at constant speed."""
+    """Retract curves from a relaxed contact (`jc.retract`, vmapped over the curves) at
+    constant speed."""
     ts = np.linspace(0.0, 3e-6 / V, samples)
 
-    def force_of(p):
-        sol = jc.retract(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
-                         work_of_adhesion=p["work_of_adhesion"], depth=D0, ts=ts, velocity=V)
-        return (ts, np.asarray(sol.displacement), np.asarray(sol.force),
-                np.zeros(samples, int), ("retract",))
+    def one(g0, g1, eta1, w):
+        sol = jc.retract(jc.StandardModel(g0, g1, eta1), jc.Parabola(R), work_of_adhesion=w,
+                         depth=D0, ts=ts, velocity=V)
+        return sol.displacement, sol.force
 
-    return _noisy_map(n, seed, force_of)
+    def forces_of(P):
+        disp, force = jax.jit(jax.vmap(one))(P["G0"], P["G1"], P["eta1"],
+                                             P["work_of_adhesion"])
+        return (ts, np.asarray(disp[0]), np.asarray(force), np.zeros(samples, int),
+                ("retract",))
+
+    return _noisy_map(n, seed, samples=samples, forces_of=forces_of)
 
 
 def make_history_map(n: int, samples: int, seed: int = 0) -> list[fitting.Curve]:
-    """QI-like approach-retract curves without a hold (`jc.simulate`, full history): the
-    indentation rises linearly to `D0` and falls back to -0.5 `D0` (the probe detaches)."""
+    """QI-like approach-retract curves without a hold (`jc.simulate`, full history, vmapped
+    over the curves): the indentation rises linearly to `D0` and falls back to -0.5 `D0`
+    (the probe detaches)."""
     half = samples // 2
     ts = np.linspace(0.0, 2 * D0 / V * 1.25, samples)
     d = np.r_[np.linspace(0.0, D0, half), np.linspace(D0, -0.5 * D0, samples - half)]
     seg = np.r_[np.zeros(half, int), np.ones(samples - half, int)]
 
-    def force_of(p):
-        sol = jc.simulate(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
-                          p["work_of_adhesion"], ts, d)
-        return ts, d, np.asarray(sol.force), seg, ("approach", "retract")
+    def one(g0, g1, eta1, w):
+        return jc.simulate(jc.StandardModel(g0, g1, eta1), jc.Parabola(R), w, ts, d).force
 
-    return _noisy_map(n, seed, force_of)
+    def forces_of(P):
+        force = jax.jit(jax.vmap(one))(P["G0"], P["G1"], P["eta1"], P["work_of_adhesion"])
+        return ts, d, np.asarray(force), seg, ("approach", "retract")
+
+    return _noisy_map(n, seed, samples=samples, forces_of=forces_of)
 
 
 def main(argv=None):

@@ -1,11 +1,16 @@
 """One short run on an accelerator: the identification and sweep rows of the benchmark
 tables that need a GPU (issues: identification at scale, sweeps at device speed).
 
-    PYTHONPATH=. python benchmarks/device_check.py [--fit-curves 256] [--sweep-max 10000000]
+    PYTHONPATH=. python benchmarks/device_check.py [--fit-curves 128,4096,16384]
+        [--baseline-workers 64] [--history-fit 256] [--sweep-max 10000000]
+        [--history 32768,131072] [--repeats 2]
 
 Prints markdown rows (warm medians of `--repeats` calls after one cold call):
-`fitting.fit_each` on the synthetic relaxed-start map of `bench_fit_each.py` (curves/s, the
-per-stage split); `jc.sweep` relaxed-start summaries at 10^4..`--sweep-max` points in
+`fitting.fit_each` on the synthetic relaxed-start map of `bench_fit_each.py` with the
+platform's default schedule (curves/s, the per-stage split, LM steps a curve, peak device
+memory), on the first size also with the CPU's schedule as a paired baseline (and every
+curve's χ² compared), and on full-history QI-like maps (`make_history_map`, 200 samples);
+`jc.sweep` relaxed-start summaries at 10^4..`--sweep-max` points in
 float32 and float64 (curves/s); full-history sweeps at `--history` curves in float32. Runs on
 the CPU too (smaller sizes), which is how it is smoke-tested.
 """
@@ -26,14 +31,15 @@ import fitting
 import jaxcontact as jc
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from bench_fit_each import R, make_map  # noqa: E402
+from bench_fit_each import R, make_history_map, make_map  # noqa: E402
 
 
 def timed(fn, repeats):
+    """(cold, warm median, output): `repeats` warm calls after the first (0: warm = cold)."""
     t0 = time.perf_counter()
     out = fn()
     cold = time.perf_counter() - t0
-    warm = []
+    warm = [] if repeats else [cold]
     for _ in range(repeats):
         t0 = time.perf_counter()
         out = fn()
@@ -41,9 +47,64 @@ def timed(fn, repeats):
     return cold, statistics.median(warm), out
 
 
+def _peak_gib():
+    stats = jax.devices()[0].memory_stats() or {}
+    return stats.get("peak_bytes_in_use", float("nan")) / 2**30
+
+
+def fit_rows(curves, sizes, baseline_workers, model, repeats):
+    """`fitting.fit_each` on the first `n` of `curves` for each `n` of `sizes` with the
+    platform's default schedule (`BatchOptions()`: chunk and lanes); on the first size
+    also the CPU schedule (`chunk=n, workers=baseline_workers`) for a paired baseline and
+    the χ² of every curve compared between the two."""
+    kw = dict(radius=R, progress=False, model=model)
+    print(f"\n{model} model, {curves[0].time.size} samples a curve, default search\n\n"
+          "| schedule | curves | chunk | lanes | cold [s] | warm [s] | curves/s | prepare / "
+          "optimise / finish [ms per curve] | LM steps a curve | peak device memory [GiB] |\n"
+          "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |", flush=True)
+    first = {}
+    for i, n in enumerate(sizes):
+        runs = [("platform default", {})]
+        if i == 0 and baseline_workers:
+            runs.append((f"CPU's ({baseline_workers} lanes)",
+                         dict(chunk=n, workers=baseline_workers)))
+        for label, extra in runs:
+            batch = fitting.BatchOptions(**extra)
+            size = batch.chunk_for(n)
+            lanes = batch.lanes(size, fitting.DEFAULT_STARTS)
+            # sizes whose chunk was compiled by an earlier row: one call only
+            seen = any(batch.chunk_for(m) == size for m in sizes[:i]) and not extra
+            cold, warm, res = timed(lambda b=batch, n=n: fitting.fit_each(
+                curves[:n], batch=b, **kw), 0 if seen else repeats)
+            t = res.timings
+            steps = np.mean([np.sum(r.start_steps) for r in res.results if r is not None])
+            print(f"| {label} | {n:,} | {size} | {lanes:,} | "
+                  f"{'-' if seen else f'{cold:.1f}'} | {warm:.2f} | {n / warm:.1f} | "
+                  f"{1e3 * t['prepare'] / n:.2f} / {1e3 * t['optimise'] / n:.2f} / "
+                  f"{1e3 * t['finish'] / n:.2f} | {steps:.0f} | {_peak_gib():.2f} |",
+                  flush=True)
+            if i == 0:
+                first[label] = np.array([r.chi2 if r is not None else np.nan
+                                         for r in res.results])
+    if len(first) == 2:
+        new, old = first.values()
+        lower = int(np.sum(new <= old * (1 + 1e-9)))
+        print(f"\nχ² of the platform default against the CPU schedule on the same "
+              f"{old.size} curves: no higher (+1e-9 relative) on {lower}/{old.size}; "
+              f"largest relative difference {np.nanmax(np.abs(new / old - 1)):.2g}",
+              flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fit-curves", type=int, default=256)
+    ap.add_argument("--fit-curves", default="128,4096,16384",
+                    help="curves of the relaxed-start maps fitted, comma-separated")
+    ap.add_argument("--baseline-workers", type=int, default=64,
+                    help="lanes of the CPU schedule run on the first map size as a paired "
+                         "baseline (0: not run)")
+    ap.add_argument("--history-fit", default="256",
+                    help="curves of the full-history maps fitted (200 samples), "
+                         "comma-separated (empty: none)")
     ap.add_argument("--sweep-max", type=int, default=10_000_000)
     ap.add_argument("--history", default="32768,131072",
                     help="curves of the full-history sweeps, comma-separated")
@@ -55,16 +116,14 @@ def main(argv=None):
     print(f"{dev.platform}: {getattr(dev, 'device_kind', dev)}; jax {jax.__version__}; "
           f"{platform.node()}", flush=True)
 
-    print("\n| fit_each curves | chunk | cold [s] | warm [s] | curves/s | prepare / optimise / "
-          "finish [ms per curve] |\n| --- | --- | --- | --- | --- | --- |", flush=True)
-    curves = make_map(args.fit_curves, 60)
-    n = args.fit_curves
-    cold, warm, res = timed(lambda: fitting.fit_each(curves, radius=R, chunk=n,
-                                                      progress=False), 1)
-    t = res.timings
-    print(f"| {n} | {n} | {cold:.1f} | {warm:.2f} | {n / warm:.1f} | "
-          f"{1e3 * t['prepare'] / n:.1f} / {1e3 * t['optimise'] / n:.1f} / "
-          f"{1e3 * t['finish'] / n:.1f} |", flush=True)
+    fit_sizes = [int(x) for x in str(args.fit_curves).split(",") if x.strip()]
+    if fit_sizes:
+        fit_rows(make_map(max(fit_sizes), 60), fit_sizes, args.baseline_workers, "relaxed",
+                 args.repeats)
+    hist_sizes = [int(x) for x in str(args.history_fit).split(",") if x.strip()]
+    if hist_sizes:
+        fit_rows(make_history_map(max(hist_sizes), 200), hist_sizes, 0, "history",
+                 args.repeats)
 
     print("\n| relaxed sweep points | precision | cold [s] | warm [s] | curves/s |\n"
           "| --- | --- | --- | --- | --- |", flush=True)

@@ -490,7 +490,7 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
     1. **Prepare** each problem (:func:`_problem`: data, parameterisation, starts), in
        numpy; the contact-point mode is decided once over all curves
        (:func:`fitting._prepare.contact_point_mode`).
-    2. **Search** the problems in chunks of ``batch.chunk``, padded to one shape (samples,
+    2. **Search** the problems in chunks of ``batch.chunk_for(...)``, padded to one shape (samples,
        starts, and the last chunk to the chunk size) so that one compilation serves all:
        the global search of all starts of the chunk, then the local rounds
        (:func:`_local_search`), each one call of :func:`solve_batch` on
@@ -543,7 +543,7 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         spec = problems[idx[0]].spec
         _pad(problems)
         pb0 = problems[idx[0]]
-        size = min(batch.chunk, len(idx))
+        size = batch.chunk_for(len(idx))
         # the finish's device work compiles during the search
         args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options)
         model_at = _compile_in_background(_evaluate_chunk, *args, **kw)

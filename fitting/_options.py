@@ -363,20 +363,29 @@ class BatchOptions(_Options):
 
     **Fields:**
 
-    - `chunk`: curves per compiled call, an integer >= 1 (default 8); every chunk has this
-      shape (the last one padded), so one compilation serves all.
+    - `chunk`: curves per compiled call, an integer >= 1 (default `None`: 8 on a CPU,
+      4,096 on an accelerator; :meth:`chunk_for`); every chunk has one shape (the last one
+      padded), so one compilation serves all.
     - `workers`: lanes of the pool of starts per device, an integer >= 1 (default `None`:
-      all starts of the chunk, at most 64; :meth:`lanes`).
+      :meth:`lanes`).
     - `devices`: the devices the chunk's starts are spread over (default `None`: every
       local device of JAX's default backend; :func:`fitting.solve_batch`).
+
+    Why the defaults differ by platform: a step of the pool costs a CPU core time in
+    proportion to its lanes, and a lane idles once its start has converged, so a CPU runs
+    a few lanes that refill from the queue; an accelerator costs about the same per step
+    for one lane or $10^5$ (the step's kernels are launch-bound below that), so every start
+    of a large chunk gets its own lane and the chunk's problems share every step
+    (measured: ``benchmarks/results/fit_each.md``).
     """
 
-    chunk: int = 8
+    chunk: int | None = None
     workers: int | None = None
     devices: Sequence | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "chunk", _integer("chunk", self.chunk, 1))
+        if self.chunk is not None:
+            object.__setattr__(self, "chunk", _integer("chunk", self.chunk, 1))
         if self.workers is not None:
             object.__setattr__(self, "workers", _integer("workers", self.workers, 1))
         if self.devices is not None:
@@ -386,12 +395,36 @@ class BatchOptions(_Options):
                                  "ones)")
             object.__setattr__(self, "devices", devices)
 
+    @property
+    def accelerated(self) -> bool:
+        """Whether the fits run on an accelerator (the first of `devices`, or JAX's default
+        backend, is not a CPU)."""
+        if self.devices is not None:
+            return self.devices[0].platform != "cpu"
+        return jax.default_backend() != "cpu"
+
+    def chunk_for(self, problems: int) -> int:
+        """Problems per compiled call for `problems` problems: `chunk`, or 8 on a CPU and
+        4,096 on an accelerator; never more than `problems`."""
+        size = self.chunk if self.chunk is not None else (
+            _ACCELERATOR_CHUNK if self.accelerated else _CPU_CHUNK)
+        return max(1, min(size, problems))
+
     def lanes(self, problems: int, starts: int) -> int:
-        """Lanes of the pool for `problems` problems of `starts` starts each: `workers`, or
-        all of them, at most 64."""
-        return self.workers if self.workers is not None else min(64, problems * starts)
+        """Lanes of the pool for `problems` problems of `starts` starts each: `workers`; or
+        on a CPU 8 per problem, at most 64; on an accelerator one per start."""
+        if self.workers is not None:
+            return self.workers
+        if self.accelerated:
+            return problems * starts
+        return min(_CPU_LANES_PER_PROBLEM * problems, _CPU_LANES, problems * starts)
+
+
+#: The platform defaults of :class:`BatchOptions` (see its docstring).
+_CPU_CHUNK, _CPU_LANES, _CPU_LANES_PER_PROBLEM, _ACCELERATOR_CHUNK = 8, 64, 8, 4096
 
 
 #: How :func:`fitting.fit` runs its one problem on the batched path: one problem a
-#: chunk, its starts on at most 8 lanes (a lane whose start has converged takes the next).
-SINGLE = BatchOptions(chunk=1, workers=8)
+#: chunk, its starts on 8 lanes on a CPU (a lane whose start has converged takes the
+#: next), each start its own lane on an accelerator (:meth:`BatchOptions.lanes`).
+SINGLE = BatchOptions(chunk=1)

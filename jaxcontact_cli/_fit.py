@@ -180,8 +180,9 @@ def add_fit_arguments(parser):
     group.add_argument("--joint", action="store_true",
                        help="one fit to all curves with shared parameters (default for "
                             "several single-curve files: e.g. different speeds)")
-    parser.add_argument("--chunk", type=int, default=8, metavar="N",
-                        help="with --each: curves per compiled call (default 8)")
+    parser.add_argument("--chunk", type=int, default=None, metavar="N",
+                        help="with --each: curves per compiled call (default 8 on a CPU, "
+                             "4096 on a GPU)")
     parser.add_argument("--posterior", action="store_true",
                         help="after the fit, sample the posterior of its free parameters by "
                              "NUTS (fitting.sample; needs numpyro): posterior.nc (ArviZ "
@@ -295,7 +296,7 @@ def _check(args):
         raise UsageError("argument --spring-constant: needs --model history")
     if args.starts is not None and args.starts < 1:
         raise UsageError(f"argument --starts: must be an integer >= 1; got {args.starts}")
-    if args.chunk < 1:
+    if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"argument --chunk: must be an integer >= 1; got {args.chunk}")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")

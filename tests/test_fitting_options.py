@@ -7,6 +7,7 @@ options are compared in tests/test_fitting_each.py, with its compiled shapes).""
 import dataclasses
 import inspect
 
+import jax
 import numpy as np
 import pytest
 
@@ -125,3 +126,21 @@ def test_signatures_show_the_options_with_their_defaults():
         assert params["options"].default is None
     assert "batch" in inspect.signature(fitting.fit_each).parameters
     assert "chunk" not in inspect.signature(fitting.fit).parameters
+
+
+def test_schedule_by_platform():
+    # a CPU runs few lanes that refill (8 per problem, at most 64); an accelerator gives
+    # every start of a large chunk its own lane; explicit values win on both
+    class Gpu:
+        platform = "gpu"
+
+    cpu = fitting.BatchOptions(devices=jax.devices("cpu")[:1])
+    gpu = fitting.BatchOptions(devices=[Gpu()])
+    assert not cpu.accelerated and gpu.accelerated
+    assert [cpu.chunk_for(n) for n in (1, 5, 100)] == [1, 5, 8]
+    assert [gpu.chunk_for(n) for n in (1, 300, 20_000)] == [1, 300, 4096]
+    assert [cpu.lanes(p, 16) for p in (1, 4, 8, 100)] == [8, 32, 64, 64]
+    assert cpu.lanes(1, 4) == 4  # never more lanes than starts
+    assert [gpu.lanes(p, 16) for p in (1, 4096)] == [16, 65_536]
+    assert fitting.BatchOptions(chunk=3, workers=5, devices=[Gpu()]).chunk_for(100) == 3
+    assert fitting.BatchOptions(workers=5, devices=[Gpu()]).lanes(100, 16) == 5

@@ -107,3 +107,22 @@ def test_pool_with_fewer_lanes_than_tasks_writes_every_task(limit):
     assert np.all(sol.converged[limits == 200])
     assert np.all(sol.steps[~run] == 0) and np.all(sol.steps[run] >= 1)
     np.testing.assert_allclose(sol.z[limits == 200], 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("solver", [LevenbergMarquardt(max_steps=200), LBFGS(max_steps=500)])
+def test_pool_with_a_lane_per_problem_equals_the_queued_pool(solver):
+    # the accelerator schedule (every problem its own lane: no queue) ends every problem
+    # where the queued pool of 2 lanes ends it, codes, step counts and limits per problem
+    # included (each problem's trajectory is its own); the end points are the closed-form
+    # minimum (1, 1)
+    z0s = [[-1.2, 1.0], [0.5, 2.0], [np.nan, 1.0], [-1.2, 1.0], [2.0, 3.0]]
+    limits = np.array([200, 200, 200, 3, 0])
+    queued = _pool(solver, z0s, limits=limits, workers=2)
+    every = _pool(solver, z0s, limits=limits, workers=len(z0s))
+    assert every.result.tolist() == queued.result.tolist()
+    assert every.steps.tolist() == queued.steps.tolist()
+    np.testing.assert_allclose(every.z, queued.z, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(every.chi2, queued.chi2, rtol=1e-10, atol=1e-20)
+    np.testing.assert_allclose(every.z[[0, 1]], 1.0, atol=1e-4)
+    if every.J is not None:
+        np.testing.assert_allclose(every.J, queued.J, rtol=1e-12)

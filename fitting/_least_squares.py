@@ -441,10 +441,11 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         end = jax.lax.while_loop(all_done, lambda s: jax.vmap(step)(s, ctxs), states0)
         return jax.vmap(result)(end)
 
-    def body(c):
-        work, tasks, out, queued, written = c
-        ctx = _take(ctxs, jnp.minimum(tasks, n_tasks - 1))
-        work = jax.vmap(step)(work, ctx)
+    def collect(work, tasks, out, queued, written):
+        # the lanes whose problem has finished: written out and refilled from the queue.
+        # Done at the top of the next iteration (and once after the loop), from the carried
+        # state: written from the step's output, XLA fuses the Jacobian's computation into
+        # both the scatter and the carry, i.e. computes it twice a step
         finished = (tasks < n_tasks) & work.done
         slot = jnp.where(finished, tasks, n_tasks)  # out of range: dropped
         out = jax.tree.map(lambda o, x: o.at[slot].set(x, mode="drop"), out,
@@ -459,6 +460,15 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         n_fin = jnp.sum(finished)
         return work, tasks, out, queued + n_fin, written + n_fin
 
+    def body(c):
+        work, tasks, out, queued, written = collect(*c)
+        ctx = _take(ctxs, jnp.minimum(tasks, n_tasks - 1))
+        return jax.vmap(step)(work, ctx), tasks, out, queued, written
+
+    def cond(c):  # some problem is neither written nor finished
+        work, tasks, _, _, written = c
+        return written + jnp.sum((tasks < n_tasks) & work.done) < n_tasks
+
     init = (_take(states0, jnp.arange(w)), jnp.arange(w), jax.vmap(result)(states0),
             jnp.asarray(w), jnp.asarray(0))
-    return jax.lax.while_loop(lambda c: c[4] < n_tasks, body, init)[2]
+    return collect(*jax.lax.while_loop(cond, body, init))[2]

@@ -613,7 +613,7 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
             spec, params, datas, np.concatenate(starts), limits=np.concatenate(limits),
             workers=lanes, rtol=options.rtol, max_steps=options.max_steps,
             optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True))
-        return [out.take(np.arange(j * n_z, (j + 1) * n_z)) for j in range(len(starts))]
+        return [out.take(slice(j * n_z, (j + 1) * n_z)) for j in range(len(starts))]
 
     outs = run([pb.zs for pb in fill], [np.full(n_z, options.max_steps, np.int32)] * size)
     # a problem whose rounds are done is not run

@@ -101,7 +101,7 @@ from ._start import (
     data_scales,
     default_bounds,
     initial_guess,
-    local_starts,
+    local_starts_batch,
     nested_starts,
     search_starts,
 )
@@ -440,8 +440,16 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
         if all(r.done for r in rounds):
             break
         before = [_best_loss(o.chi2) for o in outs]
-        starts = [local_starts(param, o.z, o.chi2, n, seed=seed + 1 + k, widen=r.widen)
-                  for param, o, r in zip(params, outs, rounds, strict=True)]
+        # the starts of the problems whose rounds go on, in one batch (their searches
+        # have equally many end points); the others' are not run (limit 0)
+        going = [j for j, r in enumerate(rounds) if not r.done]
+        batch = local_starts_batch([params[j] for j in going],
+                                   np.stack([outs[j].z for j in going]),
+                                   np.stack([outs[j].chi2 for j in going]), n,
+                                   seed=seed + 1 + k, widen=[rounds[j].widen for j in going])
+        starts = [np.asarray(o.z[:1]).repeat(n, axis=0) for o in outs]
+        for i, j in enumerate(going):
+            starts[j] = batch[i]
         limits = [np.full(n, 0 if r.done else max_steps, dtype=np.int32) for r in rounds]
         new = run(starts, limits)
         for j, r in enumerate(rounds):  # a problem whose rounds are done keeps its lanes

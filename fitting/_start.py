@@ -80,6 +80,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from scipy import special
 
 import jaxcontact as jc
 
@@ -87,7 +88,7 @@ from ._curve import Curve
 from ._spec import RHEOLOGIES, ModelSpec, n_material, parameter_info
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
-           "nested_starts", "local_starts", "LocalRounds", "distinct", "latin_hypercube",
+           "nested_starts", "local_starts", "local_starts_batch", "LocalRounds", "distinct", "latin_hypercube",
            "to_prony", "from_physical"]
 
 
@@ -311,28 +312,76 @@ def local_starts(param, z_end: np.ndarray, chi2: np.ndarray, n: int, *, seed: in
     end points `z_end` (rows) of a search with losses `chi2` (see the module docstring).
     `param`: the :class:`fitting.Parameterisation`; `widen`: the hypercube's half-widths
     in units of :data:`LOCAL_LOG_WIDTH` / :data:`LOCAL_LINEAR_WIDTH` (above 1: a widened
-    round, without the pattern moves)."""
+    round, without the pattern moves). The one-problem case of :func:`local_starts_batch`."""
+    return local_starts_batch([param], np.asarray(z_end, dtype=float)[None],
+                              np.asarray(chi2, dtype=float)[None], n, seed=seed,
+                              widen=[widen])[0]
+
+
+def local_starts_batch(params, z_end: np.ndarray, chi2: np.ndarray, n: int, *,
+                       seed: int = 0, widen) -> np.ndarray:
+    """:func:`local_starts` of `P` problems at once (the local rounds of a chunk of a force
+    map: one pass of array operations instead of one per curve).
+
+    `params`: `P` :class:`fitting.Parameterisation` of one structure (the same free
+    parameters and log flags; their bounds and references may differ); `z_end`: end points,
+    shape `(P, S, k)`; `chi2`: their losses, `(P, S)`; `widen`: `P` widths. Returns the
+    starts, `(P, n, k)`; row `i` equals ``local_starts(params[i], z_end[i], chi2[i], n,
+    seed=seed, widen=widen[i])``.
+    """
     z_end = np.asarray(z_end, dtype=float)
     chi2 = np.asarray(chi2, dtype=float)
-    order = np.argsort(np.where(np.isfinite(chi2), chi2, np.inf))
-    centres = distinct(z_end, order, 3)
-    best = z_end[centres[0]]
-    out = [best]  # the best end point continues (a run stopped by the step limit)
-    # pattern moves: on from the next-best optima through the best one
-    for c in centres[1:] if widen == 1.0 else []:
-        for k in PATTERN_STEPS:
-            out.append(best + k * (best - z_end[c]))
-    free = list(param.free)
-    lower, upper = np.asarray(param.lower), np.asarray(param.upper)
-    width = widen * np.where(np.asarray(param.log)[free], LOCAL_LOG_WIDTH, LOCAL_LINEAR_WIDTH)
-    u0 = param.internal_host(best)
-    m = max(n - len(out), 0)
-    if m:
-        u = np.repeat(u0[None], m, axis=0)
-        rows = latin_hypercube(m, len(free), seed=seed) * 2.0 - 1.0
-        u[:, free] = np.clip(u0[free] + width * rows, lower[free], upper[free])
-        out.extend(param.z_of(u))
-    return np.stack(out[:n])
+    widen = np.broadcast_to(np.asarray(widen, dtype=float), (len(params),))
+    n_p, n_s, k = z_end.shape
+    rows = np.arange(n_p)
+    order = np.argsort(np.where(np.isfinite(chi2), chi2, np.inf), axis=1)
+    # the best and the next two distinct end points (largest absolute difference of
+    # free coordinates above 1e-3 from each taken), in the order of the losses
+    far = np.max(np.abs(z_end[:, :, None, :] - z_end[:, None, :, :]), axis=-1) > 1e-3
+    far_sorted = np.take_along_axis(far, order[:, None, :], axis=2)  # [p, j, rank]
+    c0 = order[:, 0]
+    ok1 = far_sorted[rows, c0]
+    has1 = ok1.any(axis=1)
+    c1 = order[rows, np.argmax(ok1, axis=1)]
+    ok2 = ok1 & far_sorted[rows, c1] & has1[:, None]
+    has2 = ok2.any(axis=1)
+    c2 = order[rows, np.argmax(ok2, axis=1)]
+    best = z_end[rows, c0]
+    # pattern moves from the next-best optima through the best (not in a widened round)
+    steps = np.asarray(PATTERN_STEPS)
+    moves = [best[:, None, :] + steps[None, :, None] * (best - z_end[rows, c])[:, None, :]
+             for c in (c1, c2)]
+    pattern = np.where(widen == 1.0, has1.astype(int) + has2.astype(int), 0)
+    # the hypercube around the best, in internal coordinates
+    p0 = params[0]
+    free = list(p0.free)
+    lower = np.stack([np.asarray(q.lower, dtype=float) for q in params])[:, free]
+    upper = np.stack([np.asarray(q.upper, dtype=float) for q in params])[:, free]
+    reference = np.stack([np.asarray(q.reference, dtype=float) for q in params])[:, free]
+    bounded = np.isfinite(lower) & np.isfinite(upper)
+    lo_s, hi_s = np.where(bounded, lower, 0.0), np.where(bounded, upper, 1.0)
+    u0 = np.where(bounded, lo_s + (hi_s - lo_s) * special.expit(best), reference + best)
+    width = widen[:, None] * np.where(np.asarray(p0.log)[free], LOCAL_LOG_WIDTH,
+                                      LOCAL_LINEAR_WIDTH)
+    span = np.where(bounded, upper - lower, 1.0)
+    out = np.empty((n_p, n, k))
+    for count in np.unique(pattern):  # problems with as many pattern moves share a design
+        sel = pattern == count
+        head = [best[sel][:, None]] + [moves[j][sel] for j in range(count)]
+        head = np.concatenate(head, axis=1)[:, :n]
+        m = n - head.shape[1]
+        out[sel, :head.shape[1]] = head
+        if m <= 0:
+            continue
+        design = latin_hypercube(m, k, seed=seed) * 2.0 - 1.0
+        u = np.clip(u0[sel][:, None] + width[sel][:, None] * design[None],
+                    lower[sel][:, None], upper[sel][:, None])
+        # back to free vectors (`Parameterisation.z_of`, vectorised over the problems)
+        frac = np.clip((u - lo_s[sel][:, None]) / span[sel][:, None], 1e-9, 1 - 1e-9)
+        out[sel, head.shape[1]:] = np.where(bounded[sel][:, None],
+                                            np.log(frac) - np.log1p(-frac),
+                                            u - reference[sel][:, None])
+    return out
 
 
 def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0

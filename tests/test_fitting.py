@@ -11,6 +11,7 @@ import types
 import warnings
 
 import jax.numpy as jnp
+import equinox as eqx
 import numpy as np
 import pytest
 
@@ -129,6 +130,38 @@ def test_local_starts_continue_step_along_the_ladder_and_stay_inside(noisy_fit):
     assert len({tuple(r) for r in rest}) == len(rest)  # distinct hypercube points
     # a round that reuses the compiled search: as many starts as the first one
     assert local_starts(param, z_end[:1], chi2[:1], 5).shape == (5, k)
+
+
+def test_local_starts_of_a_chunk_equal_each_problem_alone(noisy_fit):
+    # a force map's round: the starts of several problems in one batch, each its own
+    # (other bounds, other widths, one optimum or three distinct ones, a non-finite end
+    # point), equal to the same problem's starts alone (every problem's rows are its own,
+    # to the bit)
+    from fitting._start import local_starts, local_starts_batch
+
+    base = noisy_fit.parameterisation
+    k = len(base.free)
+    rng = np.random.default_rng(4)
+    params, zs, chi2s = [], [], []
+    for i in range(4):
+        shift = np.asarray(base.reference) * 0 + 0.1 * i
+        param = eqx.tree_at(lambda q: (q.lower, q.upper), base,
+                            (np.asarray(base.lower) - shift, np.asarray(base.upper) + shift))
+        z = rng.normal(size=(8, k))
+        if i == 1:
+            z[:] = z[0] + 1e-6 * rng.normal(size=z.shape)  # all at one optimum
+        if i == 2:
+            z[3] = np.nan
+        chi2 = rng.uniform(1.0, 2.0, 8)
+        chi2[5] = np.inf if i == 3 else chi2[5]
+        params.append(param), zs.append(z), chi2s.append(chi2)
+    widen = [1.0, 1.0, 2.5, 6.25]
+    got = local_starts_batch(params, np.stack(zs), np.stack(chi2s), 12, seed=7, widen=widen)
+    assert got.shape == (4, 12, k)
+    for i in range(4):
+        alone = local_starts(params[i], zs[i], chi2s[i], 12, seed=7, widen=widen[i])
+        np.testing.assert_array_equal(got[i], alone)
+        assert np.all(np.isfinite(alone))
 
 
 def test_widened_rounds_leave_out_pattern_moves_and_stay_in_the_wider_box(noisy_fit):

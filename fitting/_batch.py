@@ -32,8 +32,10 @@ import json
 import time
 from collections.abc import Mapping, Sequence
 
+import jax
 import numpy as np
 
+from jaxcontact._processes import gather_objects
 from jaxcontact._progress import Progress
 
 from ._curve import Curve
@@ -196,6 +198,11 @@ def fit_each(curves: Sequence[Curve | FailedCurve], *, options: FitOptions | Non
     rounds while any of its curves improves, so a curve may get more rounds than alone,
     never a worse optimum).
 
+    Several processes (after `jax.distributed.initialize`; every process calls `fit_each`
+    with the same curves and options, as any multi-process JAX program): each fits every
+    P-th curve on its own devices, and every process returns all results
+    (:func:`jaxcontact._processes.gather_objects`; `timings` are the slowest process's).
+
     **Returns:** a :class:`FitEachResult` (`.to_dataset()`, `.grid()`, `.summary()`).
 
     **Raises:** `ValueError` naming the argument for bad options, or when no curve can be
@@ -215,16 +222,26 @@ def fit_each(curves: Sequence[Curve | FailedCurve], *, options: FitOptions | Non
         raise ValueError("curves: none could be loaded: "
                          + "; ".join(f"curve {i}: {e}" for i, e in enumerate(errors)))
     t_start = time.perf_counter()
-    show = Progress(options.progress, "fit-each", total=len(items)).stage  # (stage, done)
-    out = identify([[items[i]] for i in good], options, batch, isolate=True, warn=False,
+    # several processes (after `jax.distributed.initialize`): each fits every P-th curve
+    # on its own devices, and every process gets all results
+    n_proc, rank = jax.process_count(), jax.process_index()
+    mine = good[rank::n_proc]
+    show = Progress(options.progress and rank == 0, "fit-each",
+                    total=len(mine)).stage  # (stage, done)
+    out = identify([[items[i]] for i in mine], options, batch, isolate=True, warn=False,
                    progress=show)  # warnings summarised below
+    got = {i: (out.errors[g], out.final(g)) for g, i in enumerate(mine)}
+    spec, timings = out.spec, dict(out.timings)
+    if n_proc > 1:
+        parts = gather_objects((got, spec, timings))
+        got = {i: v for part, _, _ in parts for i, v in part.items()}
+        spec = next((sp for _, sp, _ in parts if sp is not None), None)
+        timings = {k: max(t[k] for _, _, t in parts) for k in timings}  # the slowest
     results: list[FitResult | None] = [None] * len(items)
-    for g, i in enumerate(good):
-        errors[i] = out.errors[g]
-        results[i] = out.final(g)
-    spec = out.spec
+    for i in good:
+        errors[i], results[i] = got[i]
     info = parameter_info(spec) if spec is not None else []
-    timings = dict(out.timings, total=time.perf_counter() - t_start)
+    timings = dict(timings, total=time.perf_counter() - t_start)
     warn_summary(results)  # each curve's warnings are in its result: one warning per kind
     return FitEachResult(
         results=results, errors=errors,

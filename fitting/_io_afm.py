@@ -214,10 +214,22 @@ def _curve_failure(exc: BaseException) -> str | None:
 
 
 def _plain_metadata(ds) -> dict:
+    """The curve's metadata as plain values: afmformats keeps some as lazy values
+    (functions of the data, e.g. "z range"), evaluated here on access, so that a curve and
+    its results can be pickled (sent between processes); a value that cannot be evaluated
+    is left out."""
     try:
-        return dict(ds.metadata)
+        meta = ds.metadata
+        keys = list(meta.keys())
     except Exception:  # noqa: BLE001 - metadata of a broken curve are optional
         return {}
+    out = {}
+    for key in keys:
+        try:
+            out[key] = meta[key]
+        except Exception:  # noqa: BLE001 - an optional value that cannot be computed
+            continue
+    return out
 
 
 def _sample_time(meta, n: int, sample_rate) -> np.ndarray:
@@ -239,7 +251,7 @@ def _sample_time(meta, n: int, sample_rate) -> np.ndarray:
 
 def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, pkw,
                sample_rate=None, reader="afmformats"):
-    meta = dict(ds.metadata)
+    meta = _plain_metadata(ds)
     meta["reader"] = reader
     cols = list(ds.columns)
     if height_column is None:

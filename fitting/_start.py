@@ -88,7 +88,8 @@ from ._curve import Curve
 from ._spec import RHEOLOGIES, ModelSpec, n_material, parameter_info
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
-           "nested_starts", "local_starts", "local_starts_batch", "LocalRounds", "distinct", "latin_hypercube",
+           "nested_starts", "local_starts", "local_starts_batch", "LocalRounds",
+           "latin_hypercube",
            "to_prony", "from_physical"]
 
 
@@ -292,18 +293,6 @@ class LocalRounds:
             self.done = True
         else:
             self.widen *= LOCAL_WIDEN
-
-
-def distinct(z: np.ndarray, order, k: int, tol: float = 1e-3) -> list[int]:
-    """The first `k` indices of `order` whose rows of `z` differ from those taken (largest
-    absolute difference above `tol`)."""
-    out: list[int] = []
-    for i in order:
-        if all(np.max(np.abs(z[i] - z[j])) > tol for j in out):
-            out.append(int(i))
-        if len(out) == k:
-            break
-    return out
 
 
 def local_starts(param, z_end: np.ndarray, chi2: np.ndarray, n: int, *, seed: int = 0,

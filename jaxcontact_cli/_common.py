@@ -97,6 +97,59 @@ def add_material_arguments(p, *, radius_required: bool = True) -> None:
     )
 
 
+def add_process_arguments(p) -> None:
+    """The options of a command that several processes can share (``jax.distributed``):
+    ``--coordinator HOST:PORT --num-processes N --process-id I``, or ``--distributed``
+    (the cluster's environment)."""
+    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="several processes: the address of process 0 (jax.distributed)")
+    p.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
+    p.add_argument("--process-id", type=int, default=None, help="with --coordinator")
+    p.add_argument("--distributed", action="store_true",
+                   help="several processes, configured from the cluster's environment "
+                        "(SLURM, Open MPI, ...: jax.distributed.initialize())")
+
+
+def check_process_arguments(args) -> None:
+    """`UsageError` naming the option for inconsistent process options."""
+    given = [args.num_processes is not None, args.process_id is not None]
+    if args.coordinator is not None:
+        if not all(given):
+            raise UsageError("argument --coordinator: needs --num-processes and --process-id")
+        host, sep, port = args.coordinator.rpartition(":")
+        if not sep or not host or not port.isdigit():
+            raise UsageError(f"argument --coordinator: expected HOST:PORT; got "
+                             f"{args.coordinator!r}")
+        if args.num_processes < 1:
+            raise UsageError(f"argument --num-processes: must be >= 1; got {args.num_processes}")
+        if not 0 <= args.process_id < args.num_processes:
+            raise UsageError(f"argument --process-id: must lie in [0, {args.num_processes - 1}]; "
+                             f"got {args.process_id}")
+        if args.distributed:
+            raise UsageError("argument --distributed: not together with --coordinator")
+    elif any(given):
+        raise UsageError("argument --num-processes/--process-id: need --coordinator")
+
+
+def several_processes(args) -> bool:
+    """Whether the process options ask for several processes."""
+    return args.coordinator is not None or bool(args.distributed)
+
+
+def start_processes(args) -> int:
+    """``jax.distributed.initialize`` as the process options say (before any JAX
+    computation); returns this process's index (0 with one process)."""
+    import jax
+
+    if args.coordinator is not None:
+        jax.distributed.initialize(coordinator_address=args.coordinator,
+                                   num_processes=args.num_processes,
+                                   process_id=args.process_id)
+    elif args.distributed:
+        jax.distributed.initialize()
+    return jax.process_index()
+
+
 def parse_assignments(option: str, items, *, ranges: bool = False) -> dict:
     """``NAME=VALUE`` (or ``NAME=LO:HI`` with `ranges`) strings into a dict of floats."""
     out: dict = {}

@@ -32,6 +32,12 @@ and flagged (``"status": "flagged"``, ``flags``), exit 0. JAX's persistent compi
 cache (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``; none when
 ``$JAXCONTACT_NO_CACHE`` is set) spares a second run the
 compile.
+
+Several processes (``--coordinator HOST:PORT --num-processes N --process-id I`` in each, or
+``--distributed`` from a cluster's environment: ``jax.distributed``) share the curves of a
+force map or of ``--each``: each fits every N-th curve on its own devices
+(:func:`fitting.fit_each`), all get every result, and process 0 checks and writes the
+output folder; the others write nothing.
 """
 
 from __future__ import annotations
@@ -44,9 +50,13 @@ import warnings
 from ._common import (
     OutputFolder,
     UsageError,
+    add_process_arguments,
     check_number,
+    check_process_arguments,
     parse_assignments,
     parse_profile,
+    several_processes,
+    start_processes,
 )
 
 __all__ = ["add_parser", "add_fit_arguments", "load_inputs", "run", "EXIT_NOT_CONVERGED"]
@@ -183,6 +193,7 @@ def add_fit_arguments(parser):
     parser.add_argument("--chunk", type=int, default=None, metavar="N",
                         help="with --each: curves per compiled call (default 8 on a CPU, "
                              "4096 on a GPU)")
+    add_process_arguments(parser)  # with --each: the curves shared by several processes
     parser.add_argument("--posterior", action="store_true",
                         help="after the fit, sample the posterior of its free parameters by "
                              "NUTS (fitting.sample; needs numpyro): posterior.nc (ArviZ "
@@ -353,10 +364,17 @@ def _check(args):
 
 def run(args) -> int:
     """Run a fit from parsed arguments; returns the exit status (0: converged fit)."""
+    # several processes share a map's curves (started before anything starts JAX, such
+    # as the probe's check); process 0 checks and writes the output
+    check_process_arguments(args)
+    rank = start_processes(args) if several_processes(args) else 0
     profile, radius, fixed, bounds, initial, indentation_range = _check(args)
-    folder = OutputFolder("--out", args.out, command="fit")
+    folder = OutputFolder("--out", args.out, command="fit") if rank == 0 else None
     curves, multi = load_inputs(args)
     each = args.each or (multi and not args.joint)
+    if several_processes(args) and not each:
+        raise UsageError("argument --coordinator/--distributed: several processes share the "
+                         "curves of a force map or of --each; one fit runs in one process")
     _enable_cache()
     import fitting
 
@@ -454,6 +472,8 @@ def _fit_and_write(args, folder, fit, *, write, figure, check=None):
         raise UsageError(" ".join(str(exc).split())) from None
     if check is not None:
         check(result)
+    if folder is None:  # a process other than 0 of several: process 0 writes
+        return result, None
     staging = folder.stage()
     try:
         write(result, staging)
@@ -493,9 +513,10 @@ def _run_each(args, folder, curves, options) -> int:
         write=fitting.write_each_report, figure=("map.png", "plot_map"), check=check)
     bad = len(curves) - result.n_converged
     if bad:
-        print(f"jaxcontact fit: error: {result.n_failed} curve(s) failed and "
-              f"{bad - result.n_failed} did not converge (kept with their best point, "
-              f"flagged; see {out / 'map.csv'}, columns status, convergence and error)",
-              file=sys.stderr)
+        if out is not None:  # process 0 (of one or several) says it
+            print(f"jaxcontact fit: error: {result.n_failed} curve(s) failed and "
+                  f"{bad - result.n_failed} did not converge (kept with their best point, "
+                  f"flagged; see {out / 'map.csv'}, columns status, convergence and error)",
+                  file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return 0

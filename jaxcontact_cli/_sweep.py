@@ -19,9 +19,12 @@ from ._common import (
     COMMIT_GUARD,
     UsageError,
     add_material_arguments,
+    add_process_arguments,
     check_number,
     check_output_file,
+    check_process_arguments,
     note_written,
+    start_processes,
     temp_beside,
 )
 
@@ -107,13 +110,7 @@ def add_parser(sub, common) -> None:
                    help="swept option on the plot's x axis (default: the one with most values)")
     p.add_argument("--cpu-devices", type=int, default=None,
                    help="JAX devices on the CPU (default: one per usable core)")
-    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                   help="several processes: the address of process 0 (jax.distributed)")
-    p.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
-    p.add_argument("--process-id", type=int, default=None, help="with --coordinator")
-    p.add_argument("--distributed", action="store_true",
-                   help="several processes, configured from the cluster's environment "
-                        "(SLURM, Open MPI, ...: jax.distributed.initialize())")
+    add_process_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -203,23 +200,7 @@ def check_args(args):
         raise UsageError(f"argument --chunk-size: must be an integer >= 1; got {args.chunk_size}")
     if args.cpu_devices is not None and args.cpu_devices < 1:
         raise UsageError(f"argument --cpu-devices: must be >= 1; got {args.cpu_devices}")
-    given = [args.num_processes is not None, args.process_id is not None]
-    if args.coordinator is not None:
-        if not all(given):
-            raise UsageError("argument --coordinator: needs --num-processes and --process-id")
-        host, sep, port = args.coordinator.rpartition(":")
-        if not sep or not host or not port.isdigit():
-            raise UsageError(f"argument --coordinator: expected HOST:PORT; got "
-                             f"{args.coordinator!r}")
-        if args.num_processes < 1:
-            raise UsageError(f"argument --num-processes: must be >= 1; got {args.num_processes}")
-        if not 0 <= args.process_id < args.num_processes:
-            raise UsageError(f"argument --process-id: must lie in [0, {args.num_processes - 1}]; "
-                             f"got {args.process_id}")
-        if args.distributed:
-            raise UsageError("argument --distributed: not together with --coordinator")
-    elif any(given):
-        raise UsageError("argument --num-processes/--process-id: need --coordinator")
+    check_process_arguments(args)
     if args.out.suffix != ".nc":
         raise UsageError(f"argument --out: the file must end in .nc (netCDF); got {args.out}")
 
@@ -240,13 +221,7 @@ def _start_jax(args):
         if args.cpu_devices is not None:
             raise UsageError("argument --cpu-devices: JAX has already started in this "
                              "process; it only applies to a fresh process") from None
-    if args.coordinator is not None:
-        jax.distributed.initialize(coordinator_address=args.coordinator,
-                                   num_processes=args.num_processes,
-                                   process_id=args.process_id)
-    elif args.distributed:
-        jax.distributed.initialize()
-    return jax.process_index()
+    return start_processes(args)
 
 
 def _plot(ds, path, summary, x, log):

@@ -342,6 +342,8 @@ def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatc
         (["--radius", "1e-5", "--starts", "0"], "--starts"),
         (["--radius", "1e-5", "--max-steps", "0"], "--max-steps"),
         (["--radius", "1e-5", "--out", ""], "--out"),
+        (["--radius", "1e-5", "--coordinator", "h:1"], "--coordinator"),
+        (["--radius", "1e-5", "--process-id", "1"], "--num-processes/--process-id"),
     ],
 )
 def test_fit_bad_input_one_line_error_and_no_files(tmp_path, capsys, extra, needle):

@@ -10,8 +10,8 @@ import json
 import types
 import warnings
 
-import jax.numpy as jnp
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 

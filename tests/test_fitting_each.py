@@ -353,3 +353,89 @@ def test_batched_finish_equals_the_per_curve_finish(curves):
     # eta1 not determined: the relaxation time it enters is not determined either
     assert {d["name"]: d for d in res.results[0].derived}["tau"]["status"] == "not determined"
     assert {d["name"]: d for d in res.results[1].derived}["tau"]["status"] == "ok"
+
+
+TWO_PROCESSES = textwrap.dedent(
+    """
+    import json, sys, warnings, jax
+    jax.config.update("jax_enable_x64", True)
+    jax.distributed.initialize(coordinator_address=sys.argv[1], num_processes=2,
+                               process_id=int(sys.argv[2]))
+    import fitting
+    from tests.test_fitting_each import POINTS, GRID, R, STARTS, _curve
+    curves = [_curve(p, seed=i, grid=g) for i, (p, g) in enumerate(zip(POINTS, GRID))]
+    failed = fitting.FailedCurve("map", 3, "no contact found on the approach")
+    warnings.simplefilter("ignore")
+    res = fitting.fit_each(curves[:2] + [failed] + curves[2:], radius=R, n_starts=STARTS,
+                           chunk=2, progress=False)
+    print(json.dumps(dict(rank=jax.process_index(), errors=res.errors,
+                          chi2=[r.chi2 if r else None for r in res.results],
+                          values=[list(map(float, r.values)) if r else None
+                                  for r in res.results])))
+    """
+)
+
+
+@pytest.mark.slow
+def test_two_processes_match_one(curves):
+    # after jax.distributed.initialize two processes share the curves (each fits every
+    # second one), and each returns every curve's result: the same as one process, the
+    # failed curve in its place
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=root)
+    procs = [subprocess.Popen([sys.executable, "-c", TWO_PROCESSES, f"127.0.0.1:{port}",
+                               str(i)], env=env, cwd=root, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for i in range(2)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    for p, (_, err) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, err[-3000:]
+    got = [json.loads(o.strip().splitlines()[-1]) for o, _ in outs]
+    assert [g["rank"] for g in got] == [0, 1]
+    assert got[0]["chi2"] == got[1]["chi2"] and got[0]["values"] == got[1]["values"]
+    assert got[0]["errors"][2] == "no contact found on the approach"
+    assert got[0]["chi2"][2] is None
+    one = _quiet(fitting.fit_each, curves, radius=R, n_starts=STARTS, chunk=2,
+                 progress=False)
+    for k, r in zip((0, 1, 3), one.results, strict=True):
+        assert got[0]["chi2"][k] == pytest.approx(r.chi2, rel=1e-9)
+        np.testing.assert_allclose(got[0]["values"][k], r.values, rtol=1e-6)
+
+
+@pytest.mark.slow
+def test_force_map_shared_by_two_processes_through_the_command_line(tmp_path):
+    # `jaxcontact fit MAP --coordinator ...` in two processes: process 0 writes the output
+    # folder (the others nothing), and its map equals the one-process map of the same file
+    import socket
+
+    import xarray as xr
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=root, JAXCONTACT_NO_CACHE="1")
+    args = [sys.executable, "-m", "jaxcontact_cli", "fit",
+            os.path.join(root, "tests", "data", "force-map-2x2.jpk-force-map"),
+            "--radius", "10e-6", "--starts", "4", "--no-figure", "--quiet"]
+    procs = [subprocess.Popen(args + ["--out", str(tmp_path / "two"), "--coordinator",
+                                      f"127.0.0.1:{port}", "--num-processes", "2",
+                                      "--process-id", str(i)],
+                              env=env, cwd=str(tmp_path), stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for i in range(2)]
+    outs = [p.communicate(timeout=900) for p in procs]
+    codes = [p.returncode for p in procs]
+    assert codes[0] == codes[1] and codes[0] in (0, 3), outs[0][1][-3000:]
+    one = subprocess.run(args + ["--out", str(tmp_path / "one")], env=env, cwd=str(tmp_path),
+                         capture_output=True, text=True, timeout=900)
+    assert one.returncode == codes[0], one.stderr[-3000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one", "two"]
+    a = xr.load_dataset(tmp_path / "two" / "map.nc", engine="h5netcdf")
+    b = xr.load_dataset(tmp_path / "one" / "map.nc", engine="h5netcdf")
+    np.testing.assert_allclose(a["reduced_chi2"].values, b["reduced_chi2"].values, rtol=1e-9)
+    np.testing.assert_allclose(a["G0_Pa"].values, b["G0_Pa"].values, rtol=1e-6)
+    assert a["grid_x"].values.tolist() == b["grid_x"].values.tolist()

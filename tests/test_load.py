@@ -278,3 +278,30 @@ def test_sample_rate_for_a_file_with_a_time_base_is_an_error(tmp_path):
     table.write_text("time_s,displacement_m,force_N\n0,0,0\n1,1e-6,1e-9\n2,0,0\n")
     with pytest.raises(ValueError, match="apply to instrument files only"):
         fitting.load_curve(table, sample_rate=1e3)
+
+
+@pytest.mark.parametrize("name", ["force-map-2x2.jpk-force-map",
+                                  "oocyte-stress-relaxation-cell1-0008.jpk-force",
+                                  "sin-force-distance.ibw"])
+def test_loaded_curves_pickle_with_plain_metadata(name):
+    # curves (and the results that keep them) travel between processes by pickle
+    # (`fitting.fit_each` under jax.distributed): afmformats' lazy metadata values (e.g.
+    # "z range", a function of the data) are evaluated when loaded; the evaluated value
+    # equals the data's own range
+    import pickle
+
+    curves = fitting.load_afm(DATA / name, on_error="keep")
+    back = pickle.loads(pickle.dumps(curves))
+    for a, b in zip(curves, back, strict=True):
+        assert type(a) is type(b)
+        if isinstance(a, fitting.Curve):
+            np.testing.assert_array_equal(a.force, b.force)
+            assert a.metadata.keys() == b.metadata.keys()
+            assert not any(callable(v) or type(v).__name__ == "LazyMetaValue"
+                           for v in a.metadata.values())
+    meta = curves[0].metadata
+    if "z range" in meta:
+        import afmformats
+
+        raw = afmformats.load_data(DATA / name)[0]
+        assert meta["z range"] == pytest.approx(np.ptp(raw["height (piezo)"]))

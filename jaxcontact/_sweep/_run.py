@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from .._processes import allgather
 from .._progress import Progress
 from .._validate import plausibility_checks, unchecked
 
@@ -139,11 +140,7 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
 
 def _fetch(outs):
     """The outputs of several chunks to the host, in one call (one gather across processes)."""
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        outs = multihost_utils.process_allgather(outs, tiled=True)
-    return jax.device_get(outs)
+    return jax.device_get(allgather(outs))
 
 
 # summaries of at most this many bytes wait on the device and come back together

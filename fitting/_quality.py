@@ -411,7 +411,7 @@ def warn_summary(results) -> None:
 @functools.lru_cache(maxsize=16)
 def tabor_fn(spec, k: int):
     """Tabor's parameter and its gradient w.r.t. the parameter vector, compiled once per
-    model (an eager `jax.jacfwd` per curve cost ~0.1 s a curve of a map on a GPU)."""
+    model (not an eager `jax.jacfwd` traced again for every curve of a map)."""
     import jax
 
     from ._spec import build_rheology

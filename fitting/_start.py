@@ -115,7 +115,7 @@ class DataScales:
 def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
     """G from F = 8 G (a d - I(a)) with g(a) = d; returns (G, a)."""
     if isinstance(profile, jc.Parabola):
-        # plain floats: the general path runs a few eager JAX operations (~0.1 ms each)
+        # plain floats: the general path dispatches a few eager JAX operations
         R = float(profile.R)
         a = math.sqrt(R * depth)
         integral = a**3 / (3.0 * R)

@@ -240,8 +240,8 @@ def derived_quantities(spec, p, covariance, status, *, evaluated=None) -> list[d
 @functools.lru_cache(maxsize=16)
 def derived_fn(spec):
     """The rows of :func:`derived_quantities` for `spec` and a function of the parameter
-    vector returning their values and Jacobian, compiled once per model (eagerly, the
-    forward-mode Jacobian cost ~70 ms a curve of a force map)."""
+    vector returning their values and Jacobian, compiled once per model (not an eager
+    forward-mode Jacobian traced again for every curve of a force map)."""
     import jax
 
     from ._spec import rheology_kind

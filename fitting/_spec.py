@@ -249,8 +249,10 @@ def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset) 
     name, colon, arg = rheology.partition(":") if isinstance(rheology, str) else ("", "", "")
     kind = RHEOLOGIES.get(name)
     if kind is None or (kind.arms is None and colon):
-        raise ValueError(f"rheology must be 'standard', 'prony:N' (N in [1, 8]), 'elastic' "
-                         f"or 'auto'; got {rheology!r}")
+        allowed = ", ".join(f"'{n}'" if k.arms is None else
+                            f"'{n}:N' (N in [{k.arms[0]}, {k.arms[1]}])"
+                            for n, k in RHEOLOGIES.items())
+        raise ValueError(f"rheology must be {allowed} or 'auto'; got {rheology!r}")
     if kind.arms is None:
         arms = kind.fixed_arms
     else:

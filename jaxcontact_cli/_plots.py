@@ -7,7 +7,8 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["plot_fit", "plot_map", "plot_corner", "plot_fit_posterior", "plot_sweep"]
+__all__ = ["plot_fit", "plot_map", "plot_corner", "plot_fit_posterior", "plot_sweep",
+           "plot_pulloff_demo"]
 
 _SEGMENT_COLOURS = {"approach": "tab:blue", "hold": "tab:orange", "retract": "tab:green"}
 _SEGMENTS = ("approach", "hold", "retract")
@@ -415,3 +416,34 @@ def plot_sweep(ds, path, summary, x, log):
     fig.tight_layout()
     fig.savefig(path, dpi=120, format="png")
     plt.close(fig)
+
+
+def plot_pulloff_demo(elastic, lifts, title: str, path) -> None:
+    """The figure of ``jaxcontact demo``, saved to `path` (PNG): force against indentation
+    of the elastic JKR curve `elastic` (`(displacement [m], force [N])`, dashed) and of each
+    viscoelastic lift of `lifts` (`(velocity [m/s], displacement [m], force [N], t / t_end,
+    contact radius [m])`, the samples in contact), with `title`; beside it the contact
+    radius against the lift's time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    ax1.plot(elastic[0] * 1e6, elastic[1] * 1e6, "k--",
+             label="elastic JKR, $E^*=4G_\\infty$, $\\Delta\\gamma_{eff}$")
+    for v, d, f, t, a in lifts:
+        ax1.plot(d * 1e6, f * 1e6, label=f"viscoelastic, v = {v:g} m/s")
+        ax2.plot(t, a * 1e6)
+    ax1.set_xlabel("indentation d [µm]")
+    ax1.set_ylabel("force F [µN] (adhesive < 0)")
+    ax1.legend(fontsize=8)
+    ax1.set_title(title, fontsize=9)
+    ax2.set_xlabel("t / t_end")
+    ax2.set_ylabel("contact radius a [µm]")
+    ax2.set_title("Pinned, receding, jump-off")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=120)
+    finally:
+        plt.close(fig)

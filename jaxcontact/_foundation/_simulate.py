@@ -45,8 +45,9 @@ from .._validate import (
     times_ok,
     unchecked,
 )
-from ._events import _Model
+from ._events import front_minimum, refine_jumpoff
 from ._loading import AbstractLoading, DisplacementControl
+from ._model import _Model
 from ._options import FoundationGrid
 from ._state import FoundationState, StepStart, _Carry, _MinimumPair
 
@@ -318,7 +319,7 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
         d1=jnp.where(safe, pre.d1, -depth),
     )
     jump = loading.refine_jumpoff(
-        model, model.refine_jumpoff(pre_safe), pre_safe, safe, i_j, ts, u, d, radius, force
+        model, refine_jumpoff(model, pre_safe), pre_safe, safe, i_j, ts, u, d, radius, force
     )
     jumpoff_time = jnp.where(found, jump.time, nan)
     jumpoff_disp = jnp.where(found, jump.displacement, nan)
@@ -354,7 +355,7 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
     )
     ends = jnp.stack([jnp.where(before, min_pair.radius_at, 0.0),
                       jnp.where(after, a_after, 0.0)])
-    f_steps = jax.vmap(model.front_minimum)(steps_pre, ends)
+    f_steps = jax.vmap(lambda pre, end: front_minimum(model, pre, end))(steps_pre, ends)
     f_jump = jnp.where(found, jumpoff_force, jnp.inf)
     max_tensile = smallest(jnp.stack([f_jump, f_steps[0], f_steps[1], f_sample]))
 

@@ -3,7 +3,8 @@ force–displacement curves (SI units: s, m, N; indentation positive into the sa
 compressive force positive, adhesion negative).
 
 Data in: :class:`Curve` and the loaders :func:`load_curve`, :func:`load_csv`,
-:func:`load_afm` with :func:`preprocess` (baseline, tip position, contact point).
+:func:`load_afm` with :func:`preprocess` (baseline, tip position, contact point: the
+registered steps :func:`preprocessing_steps`).
 Identification: :func:`fit` (global search, uncertainty) → :class:`FitResult`, its options
 as keywords or one checked object :class:`FitOptions` (:class:`BatchOptions` for the
 scheduling of :func:`fit_each`);
@@ -56,6 +57,7 @@ from ._prepare import prepare_curves as prepare_curves
 from ._prepare import select_samples as select_samples
 from ._prepare import stack_batches as stack_batches
 from ._preprocess import preprocess as preprocess
+from ._preprocess import preprocessing_steps as preprocessing_steps
 from ._profile import profile_likelihood as profile_likelihood
 from ._report import result_table as result_table
 from ._report import write_each_report as write_each_report

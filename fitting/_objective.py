@@ -51,14 +51,14 @@ from jaxtyping import Array, Float
 import jaxcontact as jc
 
 from ._prepare import CurveBatch
-from ._spec import ModelSpec, build_rheology, n_material, offsets
+from ._spec import ModelSpec, build_rheology, offsets, work_of_adhesion
 
 __all__ = ["predict", "effective_force", "residuals", "jacobian_fn", "internal_jacobian"]
 
 
 def _predict_one(spec: ModelSpec, p, profile, ts, drive, depth, stiffness):
     rheology = build_rheology(spec, p)
-    dgamma = p[n_material(spec)]
+    dgamma = work_of_adhesion(spec, p)
     delta, _ = offsets(spec, p)
     # the optimiser may try parameters outside the forward model's unit plausibility ranges
     # (e.g. a modulus below 1e-3 Pa for a soft gel): those are bounds of the fit

@@ -797,24 +797,26 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
 
 def _sort_arms(spec, param, u, J):
     """Prony arms in increasing order of relaxation time (the model does not depend on the
-    order; a reported ``tau_1 < tau_2 < ...`` does). Only when every arm is free with the
+    order; a reported ``tau_1 < tau_2 < ...`` does; the arms of the rheology's
+    :attr:`fitting._spec.RheologyKind.arm_indices`). Only when every arm is free with the
     same bounds, so that the order is the only difference between them."""
-    if spec.rheology != "prony" or spec.arms < 2:
+    from ._spec import rheology_kind
+
+    arm_indices = rheology_kind(spec).arm_indices
+    if arm_indices is None or spec.arms < 2:
         return u, J
-    n = spec.arms
-    g_idx = list(range(1, 1 + n))
-    t_idx = list(range(1 + n, 1 + 2 * n))
+    groups = arm_indices(spec.arms)  # one list per per-arm parameter, the times last
     free = list(param.free)
     lo, hi = np.asarray(param.lower), np.asarray(param.upper)
-    for idx in (g_idx, t_idx):
+    for idx in groups:
         if not all(i in free for i in idx):
             return u, J
         if not (np.all(lo[idx] == lo[idx[0]]) and np.all(hi[idx] == hi[idx[0]])):
             return u, J
-    order = np.argsort(u[t_idx], kind="stable")
+    order = np.argsort(u[groups[-1]], kind="stable")
     perm = np.arange(len(u))
-    perm[g_idx] = np.asarray(g_idx)[order]
-    perm[t_idx] = np.asarray(t_idx)[order]
+    for idx in groups:
+        perm[idx] = np.asarray(idx)[order]
     col = {i: c for c, i in enumerate(free)}
     return u[perm], J[:, [col[perm[i]] for i in free]]
 

@@ -26,7 +26,7 @@ from jaxcontact._validate import plain
 
 from ._least_squares import LBFGS, AbstractLeastSquaresSolver, LevenbergMarquardt
 from ._prepare import CONTACT_POINT, check_indentation_range, check_segments
-from ._spec import make_spec
+from ._spec import make_spec, rheology_kind, rheology_name
 
 __all__ = ["FitOptions", "BatchOptions", "OPTIMISERS", "DEFAULT_STARTS",
            "DEFAULT_LOCAL_ROUNDS", "make_solver"]
@@ -328,14 +328,13 @@ class FitOptions(_Options):
     def chain(self) -> list[str]:
         """The rheologies fitted in turn, each started also from the previous optimum
         (:func:`fitting._start.nested_starts`): "prony:N" is "standard", "prony:2", …,
-        "prony:N" (a richer model never ends worse than the simpler one it contains);
-        "auto" is :data:`AUTO_CHAIN`; any other rheology is fitted alone."""
+        "prony:N" (a richer model never ends worse than the simpler one it contains; the
+        rheology's :attr:`fitting._spec.RheologyKind.nested`); "auto" is
+        :data:`AUTO_CHAIN`; any other rheology is fitted alone."""
         if self.rheology == "auto":
             return list(AUTO_CHAIN)
         spec = make_spec(self.model, self.rheology, cells=self.cells)
-        if spec.rheology == "prony" and spec.arms > 1:
-            return ["standard"] + [f"prony:{k}" for k in range(2, spec.arms + 1)]
-        return [self.rheology]
+        return rheology_kind(spec).nested(spec.arms) + [rheology_name(spec)]
 
     def solver(self) -> AbstractLeastSquaresSolver:
         """The least-squares solver of every start (:func:`make_solver` of `optimiser`,

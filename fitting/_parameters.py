@@ -40,8 +40,8 @@ AT_BOUND = 1e-4
 class _host_method:
     """A method of the host path (numpy, called per start and per curve): accessed on an
     instance it is a plain `functools.partial`, not the equinox bound method (a module
-    built at every access, ~0.1 ms, which dominated the per-curve host work of a force
-    map). Not for functions passed to JAX transformations."""
+    built at every access, which dominated the per-curve host work of a force map). Not
+    for functions passed to JAX transformations."""
 
     def __init__(self, fn):
         self.fn = fn
@@ -70,9 +70,9 @@ class Parameterisation(eqx.Module):
 
     def _internal(self, xp, z):
         # (called as `Parameterisation._internal(self, ...)`: an equinox bound method is a
-        # module built at every access, ~0.1 ms on the host path of every curve)
+        # module built at every access, on the host path of every curve)
         # one transform for jax.numpy (traced, differentiable) and numpy (host: no
-        # dispatch of eager device operations, ~0.1 ms each, per start and per curve)
+        # dispatch of eager device operations, per start and per curve)
         idx = list(self.free)
         reference = xp.asarray(self.reference)
         ref = reference[xp.asarray(idx)]

@@ -14,31 +14,40 @@ sample is ``p = u − F/k`` (the deflection lifts the tip by ``F/k`` while pushi
 
 Contact point and baseline (:func:`preprocess`)
 -----------------------------------------------
-1. Free region: the ``rest`` segment if one precedes the approach (and has at least 10
-   samples); otherwise the first ``baseline_fraction`` of the approach, later replaced
-   by the approach samples before 90 % of the detected contact index (repeated until the
-   contact index settles, at most 5 times).
-2. Baseline model, in time ``t`` [s]: ``"constant"`` (mean of the free force) or
-   ``"linear"`` (least-squares line ``F_0 + s t`` through the free force: corrects a
-   deflection drift, which is a function of time, not of position). The noise
-   ``sigma`` is the standard deviation of the free approach (or rest) force about it.
-3. With ``"linear"``, the free tail of the retract (its last ``baseline_fraction``, at
-   least 10 samples) joins the line when it is free and consistent: its scatter about
-   its own line is below ``2 sigma``, no sample lies more than ``threshold * sigma`` off
-   that line (no detachment step), the line does not move by more than
-   ``threshold * sigma`` over the tail, and the joint line leaves the free approach
-   scatter within 1.25 ``sigma`` (a retract offset by viscous drag in liquid, opposite
-   to that of the approach, or a drift that is not linear in time, fails this). This
-   anchors the drift at both ends of the curve; the detection is then repeated with the
-   new baseline. ``retract_baseline=True`` always joins the tail (also for
-   ``"constant"``), ``False`` never, ``"separate"`` gives the retract its own offset.
-4. Detection: the first approach sample from which the baselined force stays above
-   ``threshold * sigma`` for ``min_run`` samples; from there back to the last sample
-   with force ``<= 0``. If the force dips below ``-2 * threshold * sigma`` just before
-   that (a jump to contact), the contact is the last sample before the dip (the first
-   sample below half the dip depth is the first in contact). If the force is positive
-   from the very first approach sample, the contact is the first approach sample.
-5. ``contact_point="fit"`` refines it by least squares of the Hertz-like power law
+The steps are registered by name (:data:`STEPS`, :func:`preprocessing_steps`); the
+pipeline is the sequence of their names, :data:`PIPELINE`, each step reading and writing
+one :class:`Preprocessing`:
+
+1. ``free_region``: the ``rest`` segment if one precedes the approach (and has at least
+   10 samples); otherwise the first ``baseline_fraction`` of the approach, later
+   replaced by the approach samples before 90 % of the detected contact index (step 3).
+2. ``baseline``: the baseline model, in time ``t`` [s]: ``"constant"`` (mean of the free
+   force) or ``"linear"`` (least-squares line ``F_0 + s t`` through the free force:
+   corrects a deflection drift, which is a function of time, not of position). The
+   noise ``sigma`` is the standard deviation of the free approach (or rest) force about
+   it.
+3. ``contact_index``, the detection: the first approach sample from which the baselined
+   force stays above ``threshold * sigma`` for ``min_run`` samples; from there back to
+   the last sample with force ``<= 0``. If the force dips below ``-2 * threshold *
+   sigma`` just before that (a jump to contact), the contact is the last sample before
+   the dip (the first sample below half the dip depth is the first in contact). If the
+   force is positive from the very first approach sample, the contact is the first
+   approach sample. With the free region on the approach, the baseline is refitted
+   before 90 % of the index and the detection repeated until the index settles (at
+   most 5 times).
+4. ``retract_baseline``: with ``"linear"``, the free tail of the retract (its last
+   ``baseline_fraction``, at least 10 samples) joins the line when it is free and
+   consistent: its scatter about its own line is below ``2 sigma``, no sample lies more
+   than ``threshold * sigma`` off that line (no detachment step), the line does not
+   move by more than ``threshold * sigma`` over the tail, and the joint line leaves the
+   free approach scatter within 1.25 ``sigma`` (a retract offset by viscous drag in
+   liquid, opposite to that of the approach, or a drift that is not linear in time,
+   fails this). This anchors the drift at both ends of the curve; the detection is then
+   repeated with the new baseline. ``retract_baseline=True`` always joins the tail (also
+   for ``"constant"``), ``False`` never, ``"separate"`` gives the retract its own offset.
+5. ``tip_position``: the baselined force and the tip position (see above).
+6. ``contact_point``: the tip position at the detected index, or with
+   ``contact_point="fit"`` refined by least squares of the Hertz-like power law
    ``F = a (p − p_c)_+^n`` (``n = contact_exponent``, 3/2 for a sphere) over the approach
    samples up to where the force first reaches ``fit_fraction`` of its approach maximum;
    ``a`` is profiled out and ``p_c`` found by a grid plus golden-section search within
@@ -52,6 +61,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -59,7 +69,8 @@ from jaxcontact._solvers import golden_section_host
 
 from ._curve import ContactPoint, Curve, DataError
 
-__all__ = ["preprocess"]
+__all__ = ["preprocess", "preprocessing_steps", "PIPELINE", "STEPS", "Step",
+           "Preprocessing"]
 
 
 def _baseline_fit(t, f, kind):
@@ -138,7 +149,7 @@ def preprocess(
     and ``curve.force`` as the raw force. Returns a curve whose displacement is the
     indentation ``p − p_c`` with tip position ``p = u − F/k`` (``p = u`` without a spring
     constant) and whose force has the baseline removed; ``contact`` records what was done.
-    The algorithm is in the module docstring.
+    The algorithm is in the module docstring: the steps of :data:`PIPELINE`, in turn.
 
     **Arguments:**
 
@@ -205,114 +216,260 @@ def preprocess(
     k = spring_constant if spring_constant is not None else curve.spring_constant
     if k is not None and not (math.isfinite(k) and k > 0):
         raise ValueError(f"spring_constant must be finite and > 0 [N/m], got {k}")
-    t, u, f = curve.time, curve.displacement, curve.force
-    offset = slope = noise = retract_offset = 0.0
-    retract_time = math.inf
-    region = "none"
-    c = None
-    method = contact_point or "none"
-    kind = baseline or "constant"
-
-    if contact_point is not None or baseline is not None:
-        if "approach" not in curve.segment_names:
-            raise ValueError(
-                f"curve has no 'approach' segment (segments {curve.segment_names}); the "
-                "baseline and contact point are found on the approach"
-            )
-        j_app = curve.segment_names.index("approach")
-        app = np.flatnonzero(curve.segment == j_app)
-        ta, fa = t[app], f[app]
-        rest_js = [j for j, nm in enumerate(curve.segment_names[:j_app]) if nm == "rest"]
-        rest = np.flatnonzero(curve.segment == rest_js[-1]) if rest_js else np.array([], int)
-        if rest.size >= 10:
-            region = "rest"
-            free = rest
-        else:
-            region = "approach"
-            free = app[: min(len(app), max(10, int(baseline_fraction * len(app))))]
-        offset, slope, noise = _baseline_fit(t[free], f[free], kind)
-        scale = float(np.max(np.abs(fa - offset - slope * ta))) or 1.0
-        sig = max(noise, 1e-12 * scale)
-        if contact_point is not None:
-            c = _detect_index(fa - offset - slope * ta, threshold * sig, min_run)
-            if region == "approach":
-                for _ in range(5):
-                    n0 = int(0.9 * c)
-                    if n0 < 10:
-                        break
-                    free = app[:n0]
-                    offset, slope, noise = _baseline_fit(t[free], f[free], kind)
-                    sig = max(noise, 1e-12 * scale)
-                    c_new = _detect_index(fa - offset - slope * ta, threshold * sig, min_run)
-                    if c_new == c:
-                        break
-                    c = c_new
-        tail = None
-        if retract_baseline == "separate":
-            tail = _retract_tail(curve, baseline_fraction)
-            if tail is None:
-                raise ValueError(
-                    "retract_baseline='separate' but the curve has no retract of at least "
-                    "20 samples"
-                )
-            r0 = int(np.flatnonzero(curve.segment == curve.segment[tail[0]])[0])
-            retract_offset = float(np.mean(f[tail] - offset - slope * t[tail]))
-            retract_time = float(t[r0])
-            tail = None
-        elif retract_baseline is True:
-            tail = _retract_tail(curve, baseline_fraction)
-            if tail is None:
-                raise ValueError(
-                    "retract_baseline=True but the curve has no retract of at least 20 "
-                    "samples"
-                )
-        elif retract_baseline is None and kind == "linear":
-            tail = _free_retract_tail(curve, f, baseline_fraction, sig, threshold)
-        if tail is not None:
-            both = np.concatenate([free, tail])
-            off2, sl2, _ = _baseline_fit(t[both], f[both], kind)
-            noise2 = float(np.std(f[free] - off2 - sl2 * t[free]))
-            if retract_baseline is True or noise2 <= 1.25 * noise:
-                offset, slope, noise = off2, sl2, noise2
-                sig = max(noise, 1e-12 * scale)
-                region += "+retract"
-                if contact_point is not None:
-                    c = _detect_index(fa - offset - slope * ta, threshold * sig, min_run)
-
-    fdet = f - offset - slope * t - np.where(t >= retract_time, retract_offset, 0.0)
-    fb = f.copy() if baseline is None else fdet
-    p = u - fdet / k if k is not None else u.copy()  # deflection from the free baseline
-    if contact_point is None:
-        p_c = float(u[0])
-        ci = 0
-    else:
-        app_p = p[app]
-        fba = fdet[app]
-        if contact_point == "detect":
-            idx = c
-            p_c = float(app_p[c])
-        else:
-            fmax = float(np.max(fba))
-            reach = np.flatnonzero(fba >= fit_fraction * fmax)
-            w = int(reach[0]) if reach.size else len(fba) - 1
-            w = max(w, min(c + 3, len(fba) - 1))
-            pw, fw = app_p[: w + 1], fba[: w + 1]
-            lo, hi = float(np.min(pw)), float(pw[-1])
-            p_c = float(_fit_power_law_contact(pw, fw, contact_exponent, lo, hi))
-            idx = int(np.searchsorted(np.maximum.accumulate(app_p), p_c))
-            idx = min(idx, len(app_p) - 1)
-        ci = int(app[idx])
+    st = Preprocessing(
+        curve=curve, baseline=baseline, contact_point=contact_point, threshold=threshold,
+        min_run=min_run, baseline_fraction=baseline_fraction, fit_fraction=fit_fraction,
+        contact_exponent=contact_exponent, retract_baseline=retract_baseline,
+        spring_constant=k,
+    )
+    for name in PIPELINE:
+        STEPS[name].function(st)
+    t, u = curve.time, curve.displacement
     cp = ContactPoint(
-        index=ci, time=float(t[ci]), tip_position=p_c, height=float(u[ci]),
-        force_offset=offset if baseline is not None else 0.0,
-        force_slope=slope if baseline is not None else 0.0,
-        noise=noise, method=method, baseline=baseline or "none", baseline_region=region,
-        retract_offset=retract_offset if baseline is not None else 0.0,
-        retract_time=retract_time,
+        index=st.contact_index, time=float(t[st.contact_index]), tip_position=st.p_c,
+        height=float(u[st.contact_index]),
+        force_offset=st.offset if baseline is not None else 0.0,
+        force_slope=st.slope if baseline is not None else 0.0,
+        noise=st.noise, method=contact_point or "none", baseline=baseline or "none",
+        baseline_region=st.region,
+        retract_offset=st.retract_offset if baseline is not None else 0.0,
+        retract_time=st.retract_time,
     )
     return dataclasses.replace(
-        curve, displacement=p - p_c, force=fb, spring_constant=k, contact=cp,
+        curve, displacement=st.tip - st.p_c, force=st.force, spring_constant=k, contact=cp,
     )
+
+
+@dataclasses.dataclass
+class Preprocessing:
+    """What the steps of :func:`preprocess` read and write (SI; one curve): the options
+    (checked), then each step's results, in the order of :data:`PIPELINE`.
+
+    **Fields:** `curve` (raw) and the options of :func:`preprocess` (`spring_constant`:
+    the one used, or `None`); `approach` (sample indices of the approach; `None` when
+    neither a baseline nor a contact point is asked for: the steps up to
+    ``retract_baseline`` do nothing); `free` (sample indices of the free force),
+    `region` (``"rest"``, ``"approach"``, ``"none"``, with ``"+retract"`` when the
+    retract's tail joined); `offset` [N], `slope` [N/s], `noise` [N] of the baseline,
+    `scale` [N] (largest baselined approach force), `sig` [N] (the noise, at least
+    1e-12 of the scale); `index` (contact index on the approach); `retract_offset` [N]
+    from `retract_time` [s] on; `baselined` [N] (force less the baseline, for the tip
+    position and the detection), `force` [N] (the output force), `tip` [m] (tip position
+    toward the sample); `p_c` [m] and `contact_index` (sample index) of the contact.
+    """
+
+    curve: Curve
+    baseline: str | None
+    contact_point: str | None
+    threshold: float
+    min_run: int
+    baseline_fraction: float
+    fit_fraction: float
+    contact_exponent: float
+    retract_baseline: bool | str | None
+    spring_constant: float | None
+    approach: np.ndarray | None = None
+    free: np.ndarray | None = None
+    region: str = "none"
+    offset: float = 0.0
+    slope: float = 0.0
+    noise: float = 0.0
+    scale: float = 1.0
+    sig: float = 0.0
+    index: int | None = None
+    retract_offset: float = 0.0
+    retract_time: float = math.inf
+    baselined: np.ndarray | None = None
+    force: np.ndarray | None = None
+    tip: np.ndarray | None = None
+    p_c: float = 0.0
+    contact_index: int = 0
+
+    def baselined_approach(self) -> np.ndarray:
+        """The approach force less the current baseline [N]."""
+        t, f = self.curve.time[self.approach], self.curve.force[self.approach]
+        return f - self.offset - self.slope * t
+
+    def fit_baseline(self, samples) -> tuple[float, float, float]:
+        """``(offset, slope, noise)`` of the baseline through the force of `samples`."""
+        return _baseline_fit(self.curve.time[samples], self.curve.force[samples],
+                             self.baseline or "constant")
+
+    def detect(self) -> int:
+        """The contact index on the approach for the current baseline."""
+        return _detect_index(self.baselined_approach(), self.threshold * self.sig,
+                             self.min_run)
+
+
+@dataclasses.dataclass(frozen=True)
+class Step:
+    """A registered preprocessing step: its `name`, the `function` that does it (reads and
+    writes a :class:`Preprocessing`) and its `description` (the docstring's first line)."""
+
+    name: str
+    function: Callable[[Preprocessing], None]
+    description: str
+
+
+#: The preprocessing steps by name (:func:`step` registers one).
+STEPS: dict[str, Step] = {}
+
+
+def step(name: str):
+    """Register the decorated function as the preprocessing step `name`."""
+
+    def register(fn):
+        if name in STEPS:
+            raise ValueError(f"preprocessing step {name!r} is registered twice")
+        STEPS[name] = Step(name, fn, (fn.__doc__ or "").strip().splitlines()[0])
+        return fn
+
+    return register
+
+
+@step("free_region")
+def _free_region(st: Preprocessing) -> None:
+    """The free force: the rest segment before the approach (at least 10 samples), else
+    the first `baseline_fraction` of the approach."""
+    curve = st.curve
+    if st.contact_point is None and st.baseline is None:
+        return
+    if "approach" not in curve.segment_names:
+        raise ValueError(
+            f"curve has no 'approach' segment (segments {curve.segment_names}); the "
+            "baseline and contact point are found on the approach"
+        )
+    j_app = curve.segment_names.index("approach")
+    st.approach = app = np.flatnonzero(curve.segment == j_app)
+    rest_js = [j for j, nm in enumerate(curve.segment_names[:j_app]) if nm == "rest"]
+    rest = np.flatnonzero(curve.segment == rest_js[-1]) if rest_js else np.array([], int)
+    if rest.size >= 10:
+        st.region, st.free = "rest", rest
+    else:
+        st.region = "approach"
+        st.free = app[: min(len(app), max(10, int(st.baseline_fraction * len(app))))]
+
+
+@step("baseline")
+def _baseline(st: Preprocessing) -> None:
+    """The baseline (constant, or a line in time) through the free force, and its noise."""
+    if st.approach is None:
+        return
+    st.offset, st.slope, st.noise = st.fit_baseline(st.free)
+    st.scale = float(np.max(np.abs(st.baselined_approach()))) or 1.0
+    st.sig = max(st.noise, 1e-12 * st.scale)
+
+
+@step("contact_index")
+def _contact_index(st: Preprocessing) -> None:
+    """The contact index by the threshold; with the free force on the approach, the
+    baseline refitted before 90 % of it until the index settles (at most 5 times)."""
+    if st.approach is None or st.contact_point is None:
+        return
+    st.index = st.detect()
+    if st.region != "approach":
+        return
+    for _ in range(5):
+        n0 = int(0.9 * st.index)
+        if n0 < 10:
+            break
+        st.free = st.approach[:n0]
+        st.offset, st.slope, st.noise = st.fit_baseline(st.free)
+        st.sig = max(st.noise, 1e-12 * st.scale)
+        c_new = st.detect()
+        if c_new == st.index:
+            break
+        st.index = c_new
+
+
+@step("retract_baseline")
+def _retract_baseline(st: Preprocessing) -> None:
+    """The retract's free tail: its own offset (``"separate"``), or joined to the baseline
+    (always, or for a linear baseline when free and consistent), then the contact index
+    again."""
+    if st.approach is None:
+        return
+    curve, f, t = st.curve, st.curve.force, st.curve.time
+    tail = None
+    if st.retract_baseline == "separate":
+        tail = _retract_tail(curve, st.baseline_fraction)
+        if tail is None:
+            raise ValueError(
+                "retract_baseline='separate' but the curve has no retract of at least "
+                "20 samples"
+            )
+        r0 = int(np.flatnonzero(curve.segment == curve.segment[tail[0]])[0])
+        st.retract_offset = float(np.mean(f[tail] - st.offset - st.slope * t[tail]))
+        st.retract_time = float(t[r0])
+        return
+    if st.retract_baseline is True:
+        tail = _retract_tail(curve, st.baseline_fraction)
+        if tail is None:
+            raise ValueError(
+                "retract_baseline=True but the curve has no retract of at least 20 "
+                "samples"
+            )
+    elif st.retract_baseline is None and (st.baseline or "constant") == "linear":
+        tail = _free_retract_tail(curve, f, st.baseline_fraction, st.sig, st.threshold)
+    if tail is None:
+        return
+    free = st.free
+    both = np.concatenate([free, tail])
+    off2, sl2, _ = st.fit_baseline(both)
+    noise2 = float(np.std(f[free] - off2 - sl2 * t[free]))
+    if st.retract_baseline is True or noise2 <= 1.25 * st.noise:
+        st.offset, st.slope, st.noise = off2, sl2, noise2
+        st.sig = max(st.noise, 1e-12 * st.scale)
+        st.region += "+retract"
+        if st.contact_point is not None:
+            st.index = st.detect()
+
+
+@step("tip_position")
+def _tip_position(st: Preprocessing) -> None:
+    """The baselined force and the tip position ``p = u - F/k`` (``u`` without a spring
+    constant)."""
+    t, u, f = st.curve.time, st.curve.displacement, st.curve.force
+    st.baselined = (f - st.offset - st.slope * t
+                    - np.where(t >= st.retract_time, st.retract_offset, 0.0))
+    st.force = f.copy() if st.baseline is None else st.baselined
+    k = st.spring_constant
+    st.tip = u - st.baselined / k if k is not None else u.copy()
+
+
+@step("contact_point")
+def _contact_point(st: Preprocessing) -> None:
+    """The contact's tip position: at the contact index (``"detect"``), by the power-law
+    fit of the onset (``"fit"``), or the first sample's base position (``"none"``)."""
+    if st.contact_point is None:
+        st.p_c, st.contact_index = float(st.curve.displacement[0]), 0
+        return
+    app_p = st.tip[st.approach]
+    if st.contact_point == "detect":
+        idx = st.index
+        st.p_c = float(app_p[idx])
+    else:
+        fba = st.baselined[st.approach]
+        fmax = float(np.max(fba))
+        reach = np.flatnonzero(fba >= st.fit_fraction * fmax)
+        w = int(reach[0]) if reach.size else len(fba) - 1
+        w = max(w, min(st.index + 3, len(fba) - 1))
+        pw, fw = app_p[: w + 1], fba[: w + 1]
+        lo, hi = float(np.min(pw)), float(pw[-1])
+        st.p_c = float(_fit_power_law_contact(pw, fw, st.contact_exponent, lo, hi))
+        idx = int(np.searchsorted(np.maximum.accumulate(app_p), st.p_c))
+        idx = min(idx, len(app_p) - 1)
+    st.contact_index = int(st.approach[idx])
+
+
+#: The pipeline of :func:`preprocess`: the registered steps (:data:`STEPS`) in this order.
+PIPELINE = ("free_region", "baseline", "contact_index", "retract_baseline", "tip_position",
+            "contact_point")
+
+
+def preprocessing_steps() -> dict[str, str]:
+    """The steps of :func:`preprocess` in the order they run: ``{name: description}``."""
+    return {name: STEPS[name].description for name in PIPELINE}
 
 
 def _retract_tail(curve: Curve, fraction: float):

@@ -64,6 +64,7 @@ import dataclasses
 import functools
 import math
 import re
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -73,6 +74,7 @@ from ._caller import warn_at_caller
 from ._curve import DataError
 from ._prepare import SEGMENTS, noise_level
 from ._preprocess import _detect_index
+from ._spec import rheology_kind
 from ._uncertainty import derived_quantities
 
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
@@ -200,10 +202,11 @@ def contact_outside(indentation, force, model_force, noise, valid, segment, cont
 
 
 def convergence(converged: bool, steps: int, max_steps: int | None, *,
-                prony_arms: int = 0) -> dict:
+                simpler: Sequence[str] = ()) -> dict:
     """``{"converged", "reason", "advice", "steps", "max_steps"}`` of the best start:
     the reason a search stopped without converging (the step limit, or no progress) and
-    what to try (empty advice when converged)."""
+    what to try (empty advice when converged); `simpler`: the simpler rheologies nested in
+    the fitted one (:attr:`fitting._spec.RheologyKind.nested`), offered as advice."""
     steps = int(steps)
     out = {"converged": bool(converged), "steps": steps,
            "max_steps": None if max_steps is None else int(max_steps)}
@@ -220,8 +223,9 @@ def convergence(converged: bool, steps: int, max_steps: int | None, *,
                   "tolerance (no step lowered chi2: a flat or non-smooth valley, or "
                   "non-finite residuals)")
         advice = ["more starts (n_starts; command line --starts)"]
-    if prony_arms > 1:
-        advice.append(f"fewer Prony arms (rheology='prony:{prony_arms - 1}' or 'standard')")
+    if simpler:
+        advice.append("a simpler rheology, with fewer arms (rheology="
+                      + " or ".join(repr(r) for r in reversed(simpler)) + ")")
     advice.append("fix a parameter the data do not determine (fixed={...}; command line "
                   "--fix NAME=VALUE) or narrow its bounds")
     out.update(reason=reason, advice=advice)
@@ -304,8 +308,7 @@ def assess(result, *, max_steps: int | None = None, evaluated=None) -> list[str]
                                   np.inf))) if np.size(result.start_losses) else 0
     result.convergence = convergence(
         result.converged, int(np.asarray(steps)[best]) if steps is not None else 0,
-        max_steps, prony_arms=int(getattr(result.spec, "arms", 0) or 0)
-        if result.spec.rheology == "prony" else 0)
+        max_steps, simpler=rheology_kind(result.spec).nested(result.spec.arms))
     if not result.converged:
         flags["not_converged"] = ("the fit did not converge: " + result.convergence["reason"]
                                   + "; the values are the best point found; try: "
@@ -408,7 +411,7 @@ def warn_summary(results) -> None:
 @functools.lru_cache(maxsize=16)
 def tabor_fn(spec, k: int):
     """Tabor's parameter and its gradient w.r.t. the parameter vector, compiled once per
-    model (an eager `jax.jacfwd` per curve cost ~0.1 s a curve of a map on a GPU)."""
+    model (not an eager `jax.jacfwd` traced again for every curve of a map)."""
     import jax
 
     from ._spec import build_rheology

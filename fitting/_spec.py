@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -38,7 +38,9 @@ __all__ = [
     "build_rheology",
     "canonical_name",
     "normalise_names",
+    "rheology_kind",
     "rheology_name",
+    "work_of_adhesion",
     "RHEOLOGIES",
     "RheologyKind",
 ]
@@ -58,15 +60,37 @@ def _info(name: str) -> tuple[str, str, str]:
 
 @dataclasses.dataclass(frozen=True)
 class RheologyKind:
-    """One rheology the fits offer (an entry of :data:`RHEOLOGIES`).
+    """One rheology the fits offer (an entry of :data:`RHEOLOGIES`): everything the fits do
+    differently for it, so that a new rheology is one entry.
 
-    **Fields:** `arms` (`None`: the name takes no argument and has this many arms, given by
-    `fixed_arms`; else the allowed range `(lo, hi)` of N in ``"name:N"``), `fixed_arms`,
-    `parameters` (arms → `[(short name, unit, kind), ...]` of the rheology's parameters, in
-    vector order), `build` ((natural parameters, arms) → a jaxcontact rheology),
-    `from_moduli` ((relaxed modulus, glass modulus, relaxation times, arm shares, arms) →
-    `{name: value}`: the parameters of a material with these moduli; the starts of a fit),
-    `help` (the parameters, in words).
+    **Fields:**
+
+    - `arms`: `None` (the name takes no argument and has `fixed_arms` arms) or the allowed
+      range `(lo, hi)` of N in ``"name:N"``; `fixed_arms`.
+    - `parameters`: arms → `[(short name, unit, kind), ...]`, the rheology's parameters in
+      vector order (a parameter of kind ``"time"``, a relaxation time, is bounded by the
+      times the curve resolves and started inside them: :func:`fitting._start.initial_guess`).
+    - `build`: (natural parameters, arms) → a jaxcontact rheology.
+    - `from_moduli`: (relaxed modulus, glass modulus, relaxation times, arm shares, arms) →
+      `{name: value}`, the parameters of a material with these moduli (the starts of a fit).
+    - `derived`: arms → `(rows, fn)`: the derived quantities reported with a fit, rows
+      `(name, unit, definition)`, and `fn` of the natural parameters of the rheology (the
+      vector's first :func:`n_material` entries and beyond) returning their values (JAX,
+      differentiable: their standard errors by the delta method).
+    - `help`: the parameters, in words.
+    - `relaxation`: (`{name: value}`, arms) → `(G_inf, [G_k], [tau_k])` [Pa, Pa, s], the
+      relaxation (Prony) form of the parameters (a simpler model's optimum read by a nested
+      fit); `None`: none offered.
+    - `from_relaxation`: (`G_inf`, `[G_k]`, `[tau_k]`) → `{name: value}`, the parameters of
+      that relaxation form with any number of arms: the rheology takes the nested starts
+      from a simpler model with arms added (:func:`fitting._start.nested_starts`); `None`:
+      it does not.
+    - `nested`: arms → the simpler rheologies fitted before this one, each started also
+      from the previous optimum (:meth:`fitting.FitOptions.chain`; also the advice of a
+      fit that did not converge); empty: fitted alone.
+    - `arm_indices`: arms → the vector indices of each per-arm parameter, one list per
+      parameter, the last the relaxation times: a fit reports the arms in increasing order
+      of it (the model does not depend on their order); `None`: no interchangeable arms.
     """
 
     arms: tuple[int, int] | None
@@ -74,13 +98,36 @@ class RheologyKind:
     parameters: Callable[[int], list[tuple[str, str, str]]]
     build: Callable
     from_moduli: Callable[..., dict[str, float]]
+    derived: Callable[[int], tuple[list[tuple[str, str, str]], Callable]]
     help: str
+    relaxation: Callable[[Mapping[str, float], int], tuple[float, list, list]] | None = None
+    from_relaxation: Callable[[float, Sequence, Sequence], dict[str, float]] | None = None
+    nested: Callable[[int], list[str]] = lambda arms: []
+    arm_indices: Callable[[int], tuple[list[int], ...]] | None = None
 
 
 def _standard_moduli(g_inf, g_glass, taus, weights, arms):
     g0 = g_glass
     g1 = g0 * g_inf / (g0 - g_inf)
     return {"G0": g0, "G1": g1, "eta1": float(taus[0]) * (g0 + g1)}
+
+
+def _standard_relaxation(p, arms):
+    g0, g1, eta = p["G0"], p["G1"], p["eta1"]
+    g_inf = g0 * g1 / (g0 + g1)
+    return g_inf, [g0 - g_inf], [eta / (g0 + g1)]
+
+
+def _standard_derived(arms):
+    rows = [("E0", "Pa", "3 G0"), ("E1", "Pa", "3 G1"),
+            ("G_inf", "Pa", "G0 G1 / (G0 + G1), relaxed shear modulus"),
+            ("E_inf", "Pa", "3 G_inf"), ("tau", "s", "eta1 / (G0 + G1)")]
+
+    def fn(q):
+        g_inf = jc.StandardModel(q[0], q[1], q[2]).relaxed_modulus
+        return jnp.stack([3 * q[0], 3 * q[1], g_inf, 3 * g_inf, q[2] / (q[0] + q[1])])
+
+    return rows, fn
 
 
 def _prony_moduli(g_inf, g_glass, taus, weights, arms):
@@ -96,22 +143,68 @@ def _prony_parameters(arms):
             + [_info(f"tau_{k + 1}") for k in range(arms)])
 
 
+def _prony_build(p, arms):
+    return jc.PronySeries(p[0], p[1:1 + arms], p[1 + arms:1 + 2 * arms])
+
+
+def _prony_relaxation(p, arms):
+    return (p["G_inf"], [p[f"G_{k + 1}"] for k in range(arms)],
+            [p[f"tau_{k + 1}"] for k in range(arms)])
+
+
+def _prony_from_relaxation(g_inf, gs, taus):
+    out = {"G_inf": g_inf}
+    for k, (g, tau) in enumerate(zip(gs, taus, strict=True)):
+        out[f"G_{k + 1}"] = float(g)
+        out[f"tau_{k + 1}"] = float(tau)
+    return out
+
+
+def _prony_derived(arms):
+    rows = [("G_0", "Pa", "G_inf + sum G_k, glass shear modulus"),
+            ("E_0", "Pa", "3 G_0"), ("E_inf", "Pa", "3 G_inf")]
+    rows += [(f"E_{k + 1}", "Pa", f"3 G_{k + 1}") for k in range(arms)]
+
+    def fn(q):
+        r = _prony_build(q, arms)
+        return jnp.concatenate([jnp.stack([r.glass_modulus, 3 * r.glass_modulus,
+                                           3 * r.relaxed_modulus]), 3 * q[1:1 + arms]])
+
+    return rows, fn
+
+
+def _prony_nested(arms):
+    # prony:N after the standard model (prony:1), prony:2, ..., prony:N-1
+    return ["standard"] + [f"prony:{k}" for k in range(2, arms)] if arms > 1 else []
+
+
+def _prony_arm_indices(arms):
+    return list(range(1, 1 + arms)), list(range(1 + arms, 1 + 2 * arms))
+
+
+def _elastic_derived(arms):
+    return [("E", "Pa", "3 G")], lambda q: 3 * q[:1]
+
+
 #: The rheologies of a fit, by name (``rheology="standard"``, ``"prony:N"``, ``"elastic"``).
 RHEOLOGIES: dict[str, RheologyKind] = {
     "standard": RheologyKind(
         arms=None, fixed_arms=1,
         parameters=lambda arms: [_info("G0"), _info("G1"), _info("eta1")],
         build=lambda p, arms: jc.StandardModel(p[0], p[1], p[2]),
-        from_moduli=_standard_moduli, help="G0 [Pa], G1 [Pa], eta1 [Pa s]"),
+        from_moduli=_standard_moduli, derived=_standard_derived,
+        help="G0 [Pa], G1 [Pa], eta1 [Pa s]", relaxation=_standard_relaxation),
     "prony": RheologyKind(
-        arms=(1, 8), fixed_arms=0, parameters=_prony_parameters,
-        build=lambda p, arms: jc.PronySeries(p[0], p[1:1 + arms], p[1 + arms:1 + 2 * arms]),
-        from_moduli=_prony_moduli, help="G_inf, G_1..G_N [Pa], tau_1..tau_N [s]"),
+        arms=(1, 8), fixed_arms=0, parameters=_prony_parameters, build=_prony_build,
+        from_moduli=_prony_moduli, derived=_prony_derived,
+        help="G_inf, G_1..G_N [Pa], tau_1..tau_N [s]", relaxation=_prony_relaxation,
+        from_relaxation=_prony_from_relaxation, nested=_prony_nested,
+        arm_indices=_prony_arm_indices),
     "elastic": RheologyKind(
         arms=None, fixed_arms=0, parameters=lambda arms: [_info("G")],
         build=lambda p, arms: jc.Elastic(p[0]),
         from_moduli=lambda g_inf, g_glass, taus, weights, arms: {"G": g_inf},
-        help="G [Pa]"),
+        derived=_elastic_derived, help="G [Pa]"),
 }
 
 
@@ -156,8 +249,10 @@ def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset) 
     name, colon, arg = rheology.partition(":") if isinstance(rheology, str) else ("", "", "")
     kind = RHEOLOGIES.get(name)
     if kind is None or (kind.arms is None and colon):
-        raise ValueError(f"rheology must be 'standard', 'prony:N' (N in [1, 8]), 'elastic' "
-                         f"or 'auto'; got {rheology!r}")
+        allowed = ", ".join(f"'{n}'" if k.arms is None else
+                            f"'{n}:N' (N in [{k.arms[0]}, {k.arms[1]}])"
+                            for n, k in RHEOLOGIES.items())
+        raise ValueError(f"rheology must be {allowed} or 'auto'; got {rheology!r}")
     if kind.arms is None:
         arms = kind.fixed_arms
     else:
@@ -175,6 +270,11 @@ def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset) 
     return ModelSpec(model=model, rheology=name, arms=arms, compliant=bool(compliant),
                      cells=int(cells), contact_offset=bool(contact_offset),
                      force_offset=bool(force_offset))
+
+
+def rheology_kind(spec: ModelSpec) -> RheologyKind:
+    """The entry of :data:`RHEOLOGIES` of `spec`'s rheology."""
+    return RHEOLOGIES[spec.rheology]
 
 
 def rheology_name(spec: ModelSpec) -> str:
@@ -206,6 +306,11 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
 def build_rheology(spec: ModelSpec, p: Float[Array, " p"]):
     """The rheology for natural parameters `p` (vector order of :func:`parameter_info`)."""
     return RHEOLOGIES[spec.rheology].build(p, spec.arms)
+
+
+def work_of_adhesion(spec: ModelSpec, p: Float[Array, " p"]):
+    """The work of adhesion $\\Delta\\gamma$ [J/m²] of natural parameters `p`."""
+    return p[n_material(spec)]
 
 
 def offsets(spec: ModelSpec, p: Float[Array, " p"]):

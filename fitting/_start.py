@@ -85,7 +85,7 @@ from scipy import special
 import jaxcontact as jc
 
 from ._curve import Curve
-from ._spec import RHEOLOGIES, ModelSpec, n_material, parameter_info
+from ._spec import ModelSpec, n_material, parameter_info, rheology_kind, rheology_name
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
            "nested_starts", "local_starts", "local_starts_batch", "LocalRounds",
@@ -117,7 +117,7 @@ class DataScales:
 def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
     """G from F = 8 G (a d - I(a)) with g(a) = d; returns (G, a)."""
     if isinstance(profile, jc.Parabola):
-        # plain floats: the general path runs a few eager JAX operations (~0.1 ms each)
+        # plain floats: the general path dispatches a few eager JAX operations
         R = float(profile.R)
         a = math.sqrt(R * depth)
         integral = a**3 / (3.0 * R)
@@ -194,7 +194,7 @@ def from_physical(spec: ModelSpec, g_inf: float, g_glass: float, taus, weights,
     """Natural parameters of `spec` from relaxed and glass moduli, relaxation times and the
     share of each arm in $G_g - G_\\infty$ (`weights`, summing to 1)."""
     g_glass = max(g_glass, 1.0001 * g_inf)
-    out = RHEOLOGIES[spec.rheology].from_moduli(g_inf, g_glass, taus, weights, spec.arms)
+    out = rheology_kind(spec).from_moduli(g_inf, g_glass, taus, weights, spec.arms)
     out["work_of_adhesion"] = work
     if spec.contact_offset:
         out["contact_offset"] = delta
@@ -209,7 +209,8 @@ def initial_guess(curves: Sequence[Curve], spec: ModelSpec, profile,
     s = data_scales(curves, spec, profile) if scales is None else scales
     n = spec.arms
     taus = s.tau * np.logspace(-1, 1, n) if n > 1 else [s.tau]
-    if spec.rheology == "prony":  # inside the bounds of the relaxation times, not at them
+    if any(kind == "time" for _, _, kind in rheology_kind(spec).parameters(n)):
+        # relaxation times as parameters: inside their bounds (`default_bounds`), not at them
         lo, hi = math.log(s.tau_min), math.log(s.tau_resolved)
         taus = np.exp(np.clip(np.log(taus), lo + 0.05 * (hi - lo), hi - 0.05 * (hi - lo)))
     return from_physical(spec, s.g_relaxed, s.g_glass, taus, np.full(n, 1.0 / max(n, 1)),
@@ -407,21 +408,23 @@ def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
 
 
 def to_prony(spec: ModelSpec, p: Mapping[str, float]) -> tuple[float, list, list, float]:
-    """`(G_inf, [G_k], [tau_k], work)` of natural parameters `p` of either rheology."""
-    if spec.rheology == "standard":
-        g0, g1, eta = p["G0"], p["G1"], p["eta1"]
-        g_inf = g0 * g1 / (g0 + g1)
-        return g_inf, [g0 - g_inf], [eta / (g0 + g1)], p["work_of_adhesion"]
-    n = spec.arms
-    return (p["G_inf"], [p[f"G_{k + 1}"] for k in range(n)],
-            [p[f"tau_{k + 1}"] for k in range(n)], p["work_of_adhesion"])
+    """`(G_inf, [G_k], [tau_k], work)` of natural parameters `p` of a rheology with a
+    relaxation form (:attr:`fitting._spec.RheologyKind.relaxation`)."""
+    relaxation = rheology_kind(spec).relaxation
+    if relaxation is None:
+        raise ValueError(f"rheology {rheology_name(spec)!r} has no relaxation form")
+    return (*relaxation(p, spec.arms), p["work_of_adhesion"])
 
 
 def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
                   s: DataScales) -> list[dict[str, float]]:
-    """Starts of `spec` (``prony:N``) from an optimum `p` of `simpler` (fewer arms)."""
-    if spec.rheology != "prony":
-        raise ValueError("nested starts are for a Prony series")
+    """Starts of `spec` (``prony:N``: a rheology that takes added arms,
+    :attr:`fitting._spec.RheologyKind.from_relaxation`) from an optimum `p` of `simpler`
+    (fewer arms)."""
+    from_relaxation = rheology_kind(spec).from_relaxation
+    if from_relaxation is None:
+        raise ValueError(f"nested starts are for a rheology that takes added arms (a Prony "
+                         f"series), not {rheology_name(spec)!r}")
     g_inf, gs, taus, work = to_prony(simpler, p)
     add = spec.arms - len(gs)
     if add < 0:
@@ -446,10 +449,8 @@ def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
     out = []
     for new_g, new_t in arms:
         order = np.argsort(new_t, kind="stable")
-        q = {"G_inf": g_inf, "work_of_adhesion": work}
-        for k, j in enumerate(order):
-            q[f"G_{k + 1}"] = float(new_g[j])
-            q[f"tau_{k + 1}"] = float(new_t[j])
+        q = from_relaxation(g_inf, [new_g[j] for j in order], [new_t[j] for j in order])
+        q["work_of_adhesion"] = work
         for extra in ("contact_offset", "force_offset"):
             if extra in p:
                 q[extra] = p[extra]

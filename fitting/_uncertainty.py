@@ -240,34 +240,11 @@ def derived_quantities(spec, p, covariance, status, *, evaluated=None) -> list[d
 @functools.lru_cache(maxsize=16)
 def derived_fn(spec):
     """The rows of :func:`derived_quantities` for `spec` and a function of the parameter
-    vector returning their values and Jacobian, compiled once per model (eagerly, the
-    forward-mode Jacobian cost ~70 ms a curve of a force map)."""
+    vector returning their values and Jacobian, compiled once per model (not an eager
+    forward-mode Jacobian traced again for every curve of a force map)."""
     import jax
-    import jax.numpy as jnp
 
-    from ._spec import build_rheology
+    from ._spec import rheology_kind
 
-    if spec.rheology == "elastic":
-        rows = [("E", "Pa", "3 G")]
-
-        def fn(q):
-            return 3 * q[:1]
-    elif spec.rheology == "standard":
-        rows = [("E0", "Pa", "3 G0"), ("E1", "Pa", "3 G1"),
-                ("G_inf", "Pa", "G0 G1 / (G0 + G1), relaxed shear modulus"),
-                ("E_inf", "Pa", "3 G_inf"), ("tau", "s", "eta1 / (G0 + G1)")]
-
-        def fn(q):
-            g_inf = build_rheology(spec, q).relaxed_modulus
-            return jnp.stack([3 * q[0], 3 * q[1], g_inf, 3 * g_inf, q[2] / (q[0] + q[1])])
-    else:
-        n = spec.arms
-        rows = [("G_0", "Pa", "G_inf + sum G_k, glass shear modulus"),
-                ("E_0", "Pa", "3 G_0"), ("E_inf", "Pa", "3 G_inf")]
-        rows += [(f"E_{k + 1}", "Pa", f"3 G_{k + 1}") for k in range(n)]
-
-        def fn(q):
-            r = build_rheology(spec, q)
-            return jnp.concatenate([jnp.stack([r.glass_modulus, 3 * r.glass_modulus,
-                                               3 * r.relaxed_modulus]), 3 * q[1:1 + n]])
+    rows, fn = rheology_kind(spec).derived(spec.arms)
     return rows, jax.jit(lambda q: (fn(q), jax.jacfwd(fn)(q)))

@@ -21,6 +21,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from ._checks import (
+    check_eagerly,
+    constraint,
+    domain,
+    domain_plausibility,
+    plausibility,
+    traced_checks,
+)
 from ._criteria import hess_coefficient
 from ._profiles import AbstractProfile, front_displacement
 from ._solution import RESULTS, fold_results, is_error, raise_if_error
@@ -28,12 +36,9 @@ from ._solvers import as_float, cast_floats, float64_scope, float_dtype, gauss_l
 from ._validate import (
     Constraint,
     check_contact_radius,
-    check_domain_plausible,
     check_plausible,
     contact_radius_plausible,
     contact_radius_valid,
-    domain_ok,
-    domain_plausible,
     is_concrete,
     plausibility_enabled,
     plausible,
@@ -65,17 +70,24 @@ def _adhesion(value, zero_ok):
                       kind="work_of_adhesion")
 
 
+def _requirements(profile, constraints, lengths=()):
+    """The `Requirement` of the profile, the scalar `constraints` and the plausibility of
+    the lengths `(name, value)`, in order of precedence."""
+    out = [domain(profile, RESULTS.invalid_profile)]
+    out += [constraint(c, _ITEMS[c.name]) for c in constraints]
+    if plausibility_enabled():
+        implausible = RESULTS.implausible_input
+        out.append(domain_plausibility(profile, implausible))
+        out += [plausibility(c.name, c.value, c.kind, implausible)
+                for c in constraints if c.kind is not None]
+        out += [plausibility(name, value, "length", implausible, magnitude=True)
+                for name, value in lengths]
+    return out
+
+
 def _eager_checks(profile, constraints, lengths=()):
     """ValueErrors for concrete inputs (domain, then plausibility of units)."""
-    for c in constraints:
-        c.check()
-    if plausibility_enabled():
-        check_domain_plausible(profile)
-        for c in constraints:
-            if c.kind is not None:
-                check_plausible(c.name, c.value, c.kind)
-        for name, value in lengths:
-            check_plausible(name, value, "length", magnitude=True)
+    check_eagerly(_requirements(profile, constraints, lengths))
 
 
 _ITEMS = {
@@ -86,17 +98,7 @@ _ITEMS = {
 
 def _traced_checks(profile, constraints, lengths=()):
     """`(ok, RESULTS item)` pairs of the scalar inputs, in order of precedence."""
-    checks = [(domain_ok(profile), RESULTS.invalid_profile)]
-    checks += [(c.ok(), _ITEMS[c.name]) for c in constraints]
-    if plausibility_enabled():
-        ok = domain_plausible(profile)
-        for c in constraints:
-            if c.kind is not None:
-                ok = ok & plausible(c.value, c.kind)
-        for _, value in lengths:
-            ok = ok & plausible(value, "length", magnitude=True)
-        checks.append((ok, RESULTS.implausible_input))
-    return checks
+    return traced_checks(_requirements(profile, constraints, lengths))
 
 
 def _finish(out, checks, entry_ok, entry_item, *, throw, radius=None, profile=None):

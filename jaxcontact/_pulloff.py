@@ -48,6 +48,7 @@ Persson–Brener); do not validate it against those.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import equinox as eqx
@@ -57,6 +58,16 @@ from jax import lax
 from jaxtyping import Array, ArrayLike, Float
 
 from ._arms import phi
+from ._checks import (
+    Requirement,
+    check_eagerly,
+    constraint,
+    domain,
+    domain_plausibility,
+    fold_checks,
+    plausibility,
+    traced_checks,
+)
 from ._criteria import relaxed_front_coefficient
 from ._method import AbstractMethod, DiffraxODE, ExactUpdate
 from ._probes import check_depth_limit, depth_limit
@@ -68,25 +79,17 @@ from ._solution import (
     RESULTS,
     ContactSolution,
     RetractDetails,
-    fold_results,
-    nan_where,
-    raise_if_error,
 )
 from ._solvers import as_float, cast_floats, float64_scope, float_dtype, smallest
 from ._validate import (
     Constraint,
     check_contact_radius,
-    check_domain_plausible,
     check_finite,
-    check_plausible,
     check_times,
     contact_radius_plausible,
     contact_radius_valid,
-    domain_ok,
-    domain_plausible,
     is_concrete,
     plausibility_enabled,
-    plausible,
     times_ok,
     unchecked,
 )
@@ -201,45 +204,16 @@ def retract(
         raise TypeError(f"`profile` must be an AbstractProfile; got {type(profile).__name__}.")
     if not isinstance(method, AbstractMethod):
         raise TypeError(f"`method` must be ExactUpdate() or DiffraxODE(...); got {method!r}.")
-    check_times(ts, require_nonnegative=velocity is not None)
     ts = as_float(ts)
     if displacement is not None:
         displacement = as_float(displacement)
-        if displacement.shape != ts.shape:
-            raise ValueError(
-                f"`displacement` [m] must have the shape of `ts` {ts.shape}; "
-                f"got {displacement.shape}."
-            )
-        check_finite("displacement", displacement, "m")
-        if depth is None:
-            depth = displacement[0]
-    if depth is None:
+        if depth is None and displacement.shape == ts.shape and ts.size:
+            depth = displacement[0]  # else the times' or the displacement's check raises
+    elif depth is None:
         raise ValueError("`depth` [m] (the relaxed indentation) is required with `velocity`.")
-    scalars = _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius)
-    for c in scalars:
-        c.check()
-    check_depth_limit("depth", profile, depth)
-    if contact_radius is not None and is_concrete(contact_radius) and is_concrete(profile):
-        amax = profile.max_radius
-        if bool(jnp.asarray(contact_radius) > amax):
-            raise ValueError(
-                f"`contact_radius` = {float(contact_radius):g} m exceeds the profile's size "
-                f"{float(amax):g} m."
-            )
     check_plausibility = plausibility_enabled()
-    if check_plausibility:
-        check_domain_plausible(rheology)
-        check_domain_plausible(profile)
-        for c in scalars:
-            check_plausible(c.name, c.value, c.kind)
-        check_plausible("ts", ts, "time", magnitude=True)
-        check_plausible("displacement", displacement, "length", magnitude=True)
-    if contact_radius is not None:
-        check_contact_radius(profile, contact_radius,
-                             f"`contact_radius` = {_number(contact_radius)} m")
-    elif is_concrete((profile, depth)):
-        check_contact_radius(profile, _relaxed_radius(profile, as_float(depth)),
-                             f"`depth` = {_number(depth)} m")
+    check_eagerly(_requirements(rheology, profile, work_of_adhesion, depth, ts, velocity,
+                                displacement, contact_radius, check_plausibility))
     dtype = float_dtype(rheology, profile, work_of_adhesion, depth, ts, velocity, displacement,
                         contact_radius)
     args = cast_floats(
@@ -262,65 +236,94 @@ def _number(value) -> str:
     return f"{float(np.asarray(value)):g}" if is_concrete(value) else "(traced)"
 
 
-def _scalar_constraints(work_of_adhesion, depth, velocity, contact_radius):
-    out = [Constraint("work_of_adhesion", work_of_adhesion, "J/m^2", kind="work_of_adhesion"),
-           Constraint("depth", depth, "m", kind="length")]
-    if velocity is not None:
-        out.append(Constraint("velocity", velocity, "m/s", kind="velocity"))
-    if contact_radius is not None:
-        out.append(Constraint("contact_radius", contact_radius, "m", kind="length"))
-    return out
-
-
-def _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
+def _requirements(rheology, profile, dgamma, depth, ts, velocity, displacement,
                   contact_radius, check_plausibility):
-    """`(ok, RESULTS item)` of every input, in the order of the arguments."""
-    items = dict(work_of_adhesion=RESULTS.invalid_work_of_adhesion,
-                 depth=RESULTS.invalid_depth, velocity=RESULTS.invalid_velocity,
-                 contact_radius=RESULTS.invalid_contact_radius)
-    scalars = _scalar_constraints(dgamma, depth, velocity, contact_radius)
-    checks = [(domain_ok(rheology), RESULTS.invalid_rheology),
-              (domain_ok(profile), RESULTS.invalid_profile)]
-    checks += [(c.ok(), items[c.name]) for c in scalars]
-    checks.append((depth <= depth_limit(profile), RESULTS.invalid_depth))
-    checks.append((times_ok(ts, require_nonnegative=velocity is not None),
-                   RESULTS.invalid_times))
-    if displacement is not None:
-        checks.append((jnp.all(jnp.isfinite(displacement)), RESULTS.invalid_displacement))
+    """The `Requirement` of every input, in the order of the arguments (the eager checks
+    and, inside the compiled program, the `.result` of a lane)."""
+    scalars = [
+        (Constraint("work_of_adhesion", dgamma, "J/m^2", kind="work_of_adhesion"),
+         RESULTS.invalid_work_of_adhesion),
+        (Constraint("depth", depth, "m", kind="length"), RESULTS.invalid_depth)]
+    if velocity is not None:
+        scalars.append((Constraint("velocity", velocity, "m/s", kind="velocity"),
+                        RESULTS.invalid_velocity))
     if contact_radius is not None:
-        checks.append((contact_radius <= profile.max_radius, RESULTS.invalid_contact_radius))
-    # the relaxed contact radius: a plausible length, within what the profile describes
-    a0 = profile.contact_radius(depth) if contact_radius is None else contact_radius
+        scalars.append((Constraint("contact_radius", contact_radius, "m", kind="length"),
+                        RESULTS.invalid_contact_radius))
+    nonnegative = velocity is not None
+
+    def same_shape():
+        if displacement.shape != ts.shape:
+            raise ValueError(
+                f"`displacement` [m] must have the shape of `ts` {ts.shape}; "
+                f"got {displacement.shape}."
+            )
+
+    def within_profile():
+        if is_concrete(contact_radius) and is_concrete(profile):
+            amax = profile.max_radius
+            if bool(jnp.asarray(contact_radius) > amax):
+                raise ValueError(
+                    f"`contact_radius` = {float(contact_radius):g} m exceeds the profile's "
+                    f"size {float(amax):g} m."
+                )
+
+    @functools.cache
+    def relaxed_radius():  # traced: the relaxed contact radius (computed once)
+        return profile.contact_radius(depth) if contact_radius is None else contact_radius
+
+    def relaxed_radius_check():
+        if contact_radius is not None:
+            check_contact_radius(profile, contact_radius,
+                                 f"`contact_radius` = {_number(contact_radius)} m")
+        elif is_concrete((profile, depth)):
+            check_contact_radius(profile, _relaxed_radius(profile, as_float(depth)),
+                                 f"`depth` = {_number(depth)} m")
+
+    out = [domain(rheology, RESULTS.invalid_rheology),
+           domain(profile, RESULTS.invalid_profile)]
+    out += [constraint(c, item) for c, item in scalars]
+    out += [Requirement(lambda: depth <= depth_limit(profile), RESULTS.invalid_depth,
+                        None if depth is None else
+                        lambda: check_depth_limit("depth", profile, depth)),
+            Requirement(lambda: times_ok(ts, require_nonnegative=nonnegative),
+                        RESULTS.invalid_times,
+                        lambda: check_times(ts, require_nonnegative=nonnegative),
+                        eager_first=True)]
+    if displacement is not None:  # (`depth` defaults to its first sample)
+        out += [Requirement(None, RESULTS.invalid_displacement, same_shape, eager_first=True),
+                Requirement(lambda: jnp.all(jnp.isfinite(displacement)),
+                            RESULTS.invalid_displacement,
+                            lambda: check_finite("displacement", displacement, "m"),
+                            eager_first=True)]
+    if contact_radius is not None:
+        out.append(Requirement(lambda: contact_radius <= profile.max_radius,
+                               RESULTS.invalid_contact_radius, within_profile))
     if check_plausibility:
-        ok = domain_plausible(rheology) & domain_plausible(profile)
-        for c in scalars:
-            ok = ok & plausible(c.value, c.kind)
-        ok = ok & plausible(ts, "time", magnitude=True)
+        implausible = RESULTS.implausible_input
+        out += [domain_plausibility(obj, implausible) for obj in (rheology, profile)]
+        out += [plausibility(c.name, c.value, c.kind, implausible) for c, _ in scalars]
+        out.append(plausibility("ts", ts, "time", implausible, magnitude=True))
         if displacement is not None:
-            ok = ok & plausible(displacement, "length", magnitude=True)
-        ok = ok & contact_radius_plausible(a0)
-        checks.append((ok, RESULTS.implausible_input))
-    checks.append((contact_radius_valid(profile, a0), RESULTS.beyond_profile))
-    return checks
+            out.append(plausibility("displacement", displacement, "length", implausible,
+                                    magnitude=True))
+        out.append(Requirement(lambda: contact_radius_plausible(relaxed_radius()),
+                               implausible))
+    # the relaxed contact radius: a plausible length, within what the profile describes
+    out.append(Requirement(lambda: contact_radius_valid(profile, relaxed_radius()),
+                           RESULTS.beyond_profile, relaxed_radius_check))
+    return out
 
 
 @eqx.filter_jit
 def _retract(rheology, profile, dgamma, depth, ts, velocity, displacement, contact_radius, method,
              throw, check_plausibility):
     with unchecked():
-        checks = _input_checks(rheology, profile, dgamma, depth, ts, velocity, displacement,
-                               contact_radius, check_plausibility)
+        checks = traced_checks(_requirements(rheology, profile, dgamma, depth, ts, velocity,
+                                             displacement, contact_radius, check_plausibility))
         sol = _solve(rheology, profile, dgamma, depth, ts, velocity, displacement,
                      contact_radius, method)
-    inputs_ok = jnp.asarray(True)
-    for ok, _ in checks:
-        inputs_ok = inputs_ok & ok
-    result = fold_results(sol.result, checks)
-    sol = eqx.tree_at(lambda s: s.result, sol, result)
-    if throw:
-        return raise_if_error(sol, result)
-    # a lane with invalid input: NaN (not numbers that look plausible)
-    return nan_where(jnp.logical_not(inputs_ok), sol)
+    return fold_checks(sol, checks, throw=throw)
 
 
 def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact_radius, method):

@@ -30,57 +30,45 @@ def run(args) -> int:
     import jaxcontact as jc
 
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib  # noqa: F401 - the figure (`_plots.plot_pulloff_demo`) needs it
     except ImportError as err:  # pragma: no cover - depends on the environment
         raise UsageError("the demo needs matplotlib: pip install 'jaxcontact[plot]'") from err
+    from ._plots import plot_pulloff_demo
 
     folder = OutputFolder("--out", args.out, command="demo")
     R, d0, dg = 1e-4, 4e-6, 0.05
     G0, G1, eta1 = 1e6, 2e5, 1e4
     rheology = jc.StandardModel(G0=G0, G1=G1, eta1=eta1)
     profile = jc.Parabola(R=R)
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     # elastic JKR curve with the relaxed modulus and the effective work of adhesion
     Ginf = float(rheology.relaxed_modulus)
     dge = dg * G0 / Ginf
     po = jc.pull_off(profile, effective_modulus=4 * Ginf, work_of_adhesion=dge)
     a = jnp.linspace(float(po.radius), np.sqrt(R * d0), 200)
     kw = dict(effective_modulus=4 * Ginf, work_of_adhesion=dge)
-    ax1.plot(jc.jkr_displacement(profile, a, **kw) * 1e6, jc.jkr_force(profile, a, **kw) * 1e6,
-             "k--", label="elastic JKR, $E^*=4G_\\infty$, $\\Delta\\gamma_{eff}$")
-    rows = []
+    elastic = (np.asarray(jc.jkr_displacement(profile, a, **kw)),
+               np.asarray(jc.jkr_force(profile, a, **kw)))
+    rows, lifts = [], []
     for v in [1e-6, 1e-4, 1e-3]:
         t_end = 3 * (d0 + abs(float(po.displacement))) / v + 10 * float(rheology.tau)
         ts = jnp.linspace(0, t_end, 4000)
         sol = jc.retract(rheology, profile, work_of_adhesion=dg, depth=d0, velocity=v, ts=ts)
         on = np.asarray(sol.contact_radius) > 0
-        ax1.plot(np.asarray(sol.displacement)[on] * 1e6, np.asarray(sol.force)[on] * 1e6,
-                 label=f"viscoelastic, v = {v:g} m/s")
-        ax2.plot(np.asarray(sol.ts)[on] / t_end, np.asarray(sol.contact_radius)[on] * 1e6)
+        lifts.append((v, np.asarray(sol.displacement)[on], np.asarray(sol.force)[on],
+                      np.asarray(sol.ts)[on] / t_end, np.asarray(sol.contact_radius)[on]))
         rows.append((v, float(sol.max_tensile_force), float(sol.jumpoff_force),
                      float(sol.jumpoff_time)))
-    ax1.set_xlabel("indentation d [µm]")
-    ax1.set_ylabel("force F [µN] (adhesive < 0)")
-    ax1.legend(fontsize=8)
-    ax1.set_title(f"Pull-off of a parabola, standard model\nR = {R * 1e6:g} µm, "
-                  f"d0 = {d0 * 1e6:g} µm, G0 = {G0:g} Pa, G1 = {G1:g} Pa, "
-                  f"η1 = {eta1:g} Pa s, Δγ = {dg:g} J/m²", fontsize=9)
-    ax2.set_xlabel("t / t_end")
-    ax2.set_ylabel("contact radius a [µm]")
-    ax2.set_title("Pinned, receding, jump-off")
-    fig.tight_layout()
+    title = (f"Pull-off of a parabola, standard model\nR = {R * 1e6:g} µm, "
+             f"d0 = {d0 * 1e6:g} µm, G0 = {G0:g} Pa, G1 = {G1:g} Pa, "
+             f"η1 = {eta1:g} Pa s, Δγ = {dg:g} J/m²")
     lines = ["velocity_m_s,max_tensile_force_N,jumpoff_force_N,jumpoff_time_s"]
     lines += [",".join(f"{x:.10g}" for x in r) for r in rows]
     staging = folder.stage()
     try:
-        fig.savefig(staging / "pulloff.png", dpi=120)
+        plot_pulloff_demo(elastic, lifts, title, staging / "pulloff.png")
         (staging / "pulloff.csv").write_text("\n".join(lines) + "\n")
         out = folder.commit()
     finally:
-        plt.close(fig)
         folder.discard()
     _log(f"wrote {out / 'pulloff.png'} and {out / 'pulloff.csv'}")
     _log(f"parameters: R = {R:g} m, relaxed at depth d0 = {d0:g} m, G0 = {G0:g} Pa, "

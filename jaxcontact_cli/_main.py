@@ -106,9 +106,8 @@ def _one_line(err: BaseException) -> str:
 
 
 #: Commands that run with `fitting.XLA_CPU_FLAGS`: the older CPU code generator makes the
-#: fitting Jacobian faster, but the forward models slower (measured with jaxlib 0.10.2 on a
-#: 2-core CPU: a full-history sweep 1.5x slower in float64, 1.4-1.7x in float32; `retract`
-#: 5-8x slower in float32), so `simulate`, `sweep` and `demo` keep XLA's default.
+#: fitting Jacobian faster, but the forward models slower (benchmarks/results/forward.md,
+#: section 3), so `simulate`, `sweep` and `demo` keep XLA's default.
 TUNED_COMMANDS = frozenset({"fit"})
 
 

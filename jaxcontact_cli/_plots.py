@@ -7,7 +7,8 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["plot_fit", "plot_map", "plot_corner", "plot_fit_posterior"]
+__all__ = ["plot_fit", "plot_map", "plot_corner", "plot_fit_posterior", "plot_sweep",
+           "plot_pulloff_demo"]
 
 _SEGMENT_COLOURS = {"approach": "tab:blue", "hold": "tab:orange", "retract": "tab:green"}
 _SEGMENTS = ("approach", "hold", "retract")
@@ -357,3 +358,92 @@ def plot_fit_posterior(posterior, path=None):
         fig.savefig(path, dpi=110)
         plt.close(fig)
     return fig
+
+
+def plot_sweep(ds, path, summary, x, log):
+    """One summary of a `jaxcontact sweep` dataset (`ds`, xarray) against a swept
+    parameter, saved to `path` (PNG): `summary` the variable plotted, `x` the parameter
+    along the horizontal axis (`None`: the longest swept one), one line per value of a
+    second swept parameter (the others at their first value, named in the title), `log`
+    `{parameter: True}` for those swept logarithmically (a log axis); a force that is
+    adhesive everywhere is plotted as its magnitude (the label says −)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    swept = [d for d in ds[summary].dims]
+    fig, ax = plt.subplots(figsize=(7.6, 4.4))
+    y = ds[summary]
+    note = []
+    if not swept:
+        ax.plot([0], [float(y)], "o")
+        ax.set_xlabel("(no swept parameter)")
+    else:
+        if x is None:
+            x = max(reversed(swept), key=lambda d: ds.sizes[d])
+        series = [d for d in swept if d != x]
+        line = series[0] if series else None
+        for d in series[1:]:
+            note.append(f"{d} = {float(ds[d][0]):.3g} {ds[d].attrs.get('units', '')}")
+            y = y.isel({d: 0})
+        flip = summary.endswith("_force_N") and bool(np.nanmax(y.values) <= 0)
+        values = -y if flip else y
+        xs = ds[x].values
+        if line is None:
+            ax.plot(xs, values.values, "o-", ms=3)
+        else:
+            for i in range(ds.sizes[line]):
+                v = float(ds[line][i])
+                ax.plot(xs, values.isel({line: i}).values, "o-", ms=3,
+                        label=f"{line} = {v:.3g} {ds[line].attrs.get('units', '')}")
+            # beside the axes, never over a line
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                      borderaxespad=0.0)
+        if log.get(x):
+            ax.set_xscale("log")
+        finite = values.values[np.isfinite(values.values)]
+        if finite.size and finite.min() > 0 and finite.max() > 30 * finite.min():
+            ax.set_yscale("log")
+        ax.set_xlabel(f"{x} [{ds[x].attrs.get('units', '')}]")
+        unit = ds[summary].attrs.get("units", "")
+        name = summary.rsplit("_", 1)[0] if unit else summary
+        label = name.replace("_", " ")
+        ax.set_ylabel(("−" if flip else "") + label + (f" [{unit}]" if unit else ""))
+    ax.set_title(f"jaxcontact sweep ({ds.attrs['model']})" + (": " + ", ".join(note)
+                                                               if note else ""), fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120, format="png")
+    plt.close(fig)
+
+
+def plot_pulloff_demo(elastic, lifts, title: str, path) -> None:
+    """The figure of ``jaxcontact demo``, saved to `path` (PNG): force against indentation
+    of the elastic JKR curve `elastic` (`(displacement [m], force [N])`, dashed) and of each
+    viscoelastic lift of `lifts` (`(velocity [m/s], displacement [m], force [N], t / t_end,
+    contact radius [m])`, the samples in contact), with `title`; beside it the contact
+    radius against the lift's time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    ax1.plot(elastic[0] * 1e6, elastic[1] * 1e6, "k--",
+             label="elastic JKR, $E^*=4G_\\infty$, $\\Delta\\gamma_{eff}$")
+    for v, d, f, t, a in lifts:
+        ax1.plot(d * 1e6, f * 1e6, label=f"viscoelastic, v = {v:g} m/s")
+        ax2.plot(t, a * 1e6)
+    ax1.set_xlabel("indentation d [µm]")
+    ax1.set_ylabel("force F [µN] (adhesive < 0)")
+    ax1.legend(fontsize=8)
+    ax1.set_title(title, fontsize=9)
+    ax2.set_xlabel("t / t_end")
+    ax2.set_ylabel("contact radius a [µm]")
+    ax2.set_title("Pinned, receding, jump-off")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=120)
+    finally:
+        plt.close(fig)

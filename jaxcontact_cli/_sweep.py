@@ -224,59 +224,6 @@ def _start_jax(args):
     return start_processes(args)
 
 
-def _plot(ds, path, summary, x, log):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    swept = [d for d in ds[summary].dims]
-    fig, ax = plt.subplots(figsize=(7.6, 4.4))
-    y = ds[summary]
-    note = []
-    if not swept:
-        ax.plot([0], [float(y)], "o")
-        ax.set_xlabel("(no swept parameter)")
-    else:
-        if x is None:
-            x = max(reversed(swept), key=lambda d: ds.sizes[d])
-        series = [d for d in swept if d != x]
-        line = series[0] if series else None
-        for d in series[1:]:
-            note.append(f"{d} = {float(ds[d][0]):.3g} {ds[d].attrs.get('units', '')}")
-            y = y.isel({d: 0})
-        flip = summary.endswith("_force_N") and bool(np.nanmax(y.values) <= 0)
-        values = -y if flip else y
-        xs = ds[x].values
-        if line is None:
-            ax.plot(xs, values.values, "o-", ms=3)
-        else:
-            for i in range(ds.sizes[line]):
-                v = float(ds[line][i])
-                ax.plot(xs, values.isel({line: i}).values, "o-", ms=3,
-                        label=f"{line} = {v:.3g} {ds[line].attrs.get('units', '')}")
-            # beside the axes, never over a line
-            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0),
-                      borderaxespad=0.0)
-        if log.get(x):
-            ax.set_xscale("log")
-        finite = values.values[np.isfinite(values.values)]
-        if finite.size and finite.min() > 0 and finite.max() > 30 * finite.min():
-            ax.set_yscale("log")
-        ax.set_xlabel(f"{x} [{ds[x].attrs.get('units', '')}]")
-        unit = ds[summary].attrs.get("units", "")
-        name = summary.rsplit("_", 1)[0] if unit else summary
-        label = name.replace("_", " ")
-        ax.set_ylabel(("−" if flip else "") + label + (f" [{unit}]" if unit else ""))
-    ax.set_title(f"jaxcontact sweep ({ds.attrs['model']})" + (": " + ", ".join(note)
-                                                               if note else ""), fontsize=9)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120, format="png")
-    plt.close(fig)
-
-
 def run(args) -> int:
     check_args(args)
     grid, log = _parameters(args)
@@ -327,7 +274,9 @@ def run(args) -> int:
         ds.to_netcdf(tmp_nc, engine="h5netcdf")
         if plot is not None:
             tmp_png, forget_png = temp_beside(plot, ".tmp")
-            _plot(ds, tmp_png, args.plot_summary, args.plot_x, log)
+            from ._plots import plot_sweep
+
+            plot_sweep(ds, tmp_png, args.plot_summary, args.plot_x, log)
         with COMMIT_GUARD:
             os.replace(tmp_nc, out)
             note_written(out)

@@ -136,3 +136,27 @@ def test_no_contact_is_data_error():
     c, _ = synth(0, a=0.0)
     with pytest.raises(fitting.DataError, match="no contact found"):
         fitting.preprocess(c)
+
+
+def test_steps_are_registered_by_name_and_run_in_the_pipeline_order(monkeypatch):
+    # a user lists the steps (named, described); preprocess runs exactly those, in order:
+    # each registered function is wrapped by a spy that records its name
+    from fitting import _preprocess
+
+    steps = fitting.preprocessing_steps()
+    assert list(steps) == ["free_region", "baseline", "contact_index", "retract_baseline",
+                           "tip_position", "contact_point"]
+    assert all(isinstance(d, str) and d for d in steps.values())
+    calls = []
+    for name, s in list(_preprocess.STEPS.items()):
+        def spy(st, fn=s.function, name=name):
+            calls.append(name)
+            fn(st)
+        monkeypatch.setitem(_preprocess.STEPS, name, _preprocess.Step(name, spy, s.description))
+    c, _ = synth(1)
+    p = fitting.preprocess(c, baseline="linear", contact_point="fit")
+    assert calls == list(steps)
+    # the result is the pipeline's: the truth of the synthetic curve (see above)
+    assert abs(p.contact.tip_position - U_S) < 3e-9 and p.contact.method == "fit"
+    with pytest.raises(ValueError, match="'baseline' is registered twice"):
+        _preprocess.step("baseline")(lambda st: None)

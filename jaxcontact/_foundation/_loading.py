@@ -15,6 +15,7 @@ from .._root import bracketed_root, newton_root
 from .._sharding import pick
 from .._solvers import as_float, quadratic_at, quadratic_newton_form, quadratic_vertex, safe_div
 from .._validate import Constraint
+from ._events import refine_instability
 from ._state import JumpOff
 
 
@@ -98,7 +99,7 @@ class AbstractLoading(eqx.Module):
     @abc.abstractmethod
     def refine_jumpoff(self, model, jumpoff, pre, safe, i_j, ts, u, d, radius, force) -> JumpOff:
         """The first jump-off refined for this loading system. `jumpoff`: the `JumpOff`
-        from `model.refine_jumpoff(pre)` (`valid`: the root under displacement control
+        from `refine_jumpoff(model, pre)` (`valid`: the root under displacement control
         bracketed the fold); `pre`: the `StepStart` of the jump-off step (a stand-in where
         `safe` is False); `i_j`: its sample index; `ts`, `u`, `d`, `radius`, `force`: the
         sampled history."""
@@ -206,7 +207,7 @@ class CompliantLoading(AbstractLoading):
         refined = jumpoff.valid
         k = self.stiffness
         i_prev = jnp.maximum(i_j - 1, 0)
-        inst = model.refine_instability(pre, pick(u, i_prev), pick(u, i_j), k)
+        inst = refine_instability(model, pre, pick(u, i_prev), pick(u, i_j), k)
         idx = jnp.maximum(i_j - jnp.arange(3, 0, -1), 0)  # i_j-3, i_j-2, i_j-1
         a3, z3, f3 = pick(radius, idx), pick(u, idx), pick(force, idx)
         usable = (i_j >= 3) & jnp.all(a3 > 0) & (a3[0] > a3[1]) & (a3[1] > a3[2])

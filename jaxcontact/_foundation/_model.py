@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 from jax import lax
+from jaxtyping import Array
 
 from .. import _sharding
 from .._arms import attached_update
 from .._criteria import line_load_coefficient
+from .._method import AbstractMethod
+from .._profiles import TouchCoordinate
 from .._root import concave_root
 from .._sharding import pick
 from .._solvers import safe_div
@@ -16,8 +20,49 @@ from ._state import Cells, FoundationState, StepBranch, StepOutput
 _ROOT_STEPS = 16
 
 
-class _ModelCore:
-    """Constants of one simulation (closed over inside the traced function)."""
+class _Model(eqx.Module):
+    r"""The constants of one simulation of the foundation model and its step (built inside
+    the traced function, closed over by the loop); the in-step events are the functions of
+    `._events` over it.
+
+    **Fields** (arrays in the simulation's precision):
+
+    - `Gi`, `Gk`, `tau`: the relaxation form $G_\infty$ [Pa], $G_k$ [Pa] and $\tau_k$ [s],
+      shape `(N,)` (an elastic rheology: one inert arm, $G_1 = 0$, $\tau_1 = 1$);
+    - `Gg`: the glass modulus $G_g = G_\infty + \sum_k G_k$ [Pa]; `arm_ratio`: $G_k/G_g$;
+      `A`: the load-free springs' rate matrix $\mathrm{diag}(1/\tau)(\mathbf 1 r^\top - I)$
+      [1/s], shape `(N, N)`;
+    - `c`: the energetic criterion's coefficient: an edge at $x$ holds while its line load
+      $q \ge -c\sqrt x$ (`line_load_coefficient`);
+    - `geo`: the profile's `TouchCoordinate`; `Gi_g`: the elastic part of beta,
+      $4G_\infty g(x)$'s weight;
+    - `x`: the grid's nodes [touch coordinate], shape `(n_nodes,)`; `n_nodes` (static);
+      `L`: the last node; `gx`, `zx`, `Zx`, `sqrt_x`: $g$, $\zeta$, $\int\zeta$ and
+      $\sqrt x$ at the nodes; `x_next`, `z_next`, `Z_next`: the same at the next node (the
+      last: $\infty$ and repeated);
+    - `method`: the `AbstractMethod` of the dashpots' update.
+    """
+
+    Gi: Array
+    Gk: Array
+    tau: Array
+    Gg: Array
+    arm_ratio: Array
+    A: Array
+    c: Array
+    geo: TouchCoordinate
+    Gi_g: Array
+    x: Array
+    n_nodes: int = eqx.field(static=True)
+    L: Array
+    gx: Array
+    zx: Array
+    Zx: Array
+    sqrt_x: Array
+    x_next: Array
+    z_next: Array
+    Z_next: Array
+    method: AbstractMethod
 
     def __init__(self, rheology, profile, work_of_adhesion, x_nodes, method):
         prony = rheology.to_prony()

@@ -10,6 +10,16 @@ from jax import lax
 from jaxtyping import ArrayLike, Float
 
 from .. import _sharding
+from .._checks import (
+    Requirement,
+    check_eagerly,
+    constraint,
+    domain,
+    domain_plausibility,
+    fold_checks,
+    plausibility,
+    traced_checks,
+)
 from .._method import AbstractMethod, ExactUpdate
 from .._probes import check_depth_limit, depth_limit
 from .._profiles import AbstractProfile
@@ -20,30 +30,24 @@ from .._solution import (
     ContactSolution,
     ErrorEstimate,
     FoundationDetails,
-    fold_results,
-    nan_where,
     raise_if_error,
 )
 from .._solvers import as_float, cast_floats, float64_scope, float_dtype, safe_div, smallest
 from .._validate import (
     Constraint,
     check_contact_radius,
-    check_domain_plausible,
     check_finite,
-    check_plausible,
     check_times,
     contact_radius_plausible,
     contact_radius_valid,
-    domain_ok,
-    domain_plausible,
     is_concrete,
     plausibility_enabled,
-    plausible,
     times_ok,
     unchecked,
 )
-from ._events import _Model
+from ._events import front_minimum, refine_jumpoff
 from ._loading import AbstractLoading, DisplacementControl
+from ._model import _Model
 from ._options import FoundationGrid
 from ._state import FoundationState, StepStart, _Carry, _MinimumPair
 
@@ -136,25 +140,11 @@ def simulate(
         grid = FoundationGrid(cells=int(grid))
     elif not isinstance(grid, FoundationGrid):
         raise TypeError(f"`grid` must be a FoundationGrid or an int; got {grid!r}.")
-    dgamma = Constraint("work_of_adhesion", work_of_adhesion, "J/m^2", kind="work_of_adhesion")
-    dgamma.check()
-    check_times(ts)
     ts = as_float(ts)
     u = as_float(displacement)
-    if u.shape != ts.shape:
-        raise ValueError(
-            f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {u.shape}."
-        )
-    check_finite("displacement", u, "m")
-    if isinstance(loading, DisplacementControl):
-        check_depth_limit("displacement", profile, u)
     check_plausibility = plausibility_enabled()
-    if check_plausibility:
-        for obj in (rheology, profile, loading, grid):
-            check_domain_plausible(obj)
-        check_plausible("work_of_adhesion", work_of_adhesion, "work_of_adhesion")
-        check_plausible("ts", ts, "time", magnitude=True)
-        check_plausible("displacement", u, "length", magnitude=True)
+    check_eagerly(_requirements(rheology, profile, work_of_adhesion, ts, u, loading, grid,
+                                check_plausibility))
     if isinstance(loading, DisplacementControl) and is_concrete((profile, u)) and u.size:
         # the largest non-adhesive radius of the history (the adhesive one, reported by the
         # solution's status, is a little larger); skipped inside a caller's trace
@@ -198,36 +188,49 @@ def _touch_radius(profile, depth):
     return profile.contact_radius(depth)
 
 
-def _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
+def _requirements(rheology, profile, work_of_adhesion, ts, u, loading, grid,
                   check_plausibility):
-    """`(ok, RESULTS item)` of every input, in the order of the arguments."""
+    """The `Requirement` of every input, in the order of the arguments (the eager checks
+    and, inside the compiled program, the `.result` of a lane)."""
     dgamma = Constraint("work_of_adhesion", work_of_adhesion, "J/m^2", kind="work_of_adhesion")
-    checks = [
-        (domain_ok(rheology), RESULTS.invalid_rheology),
-        (domain_ok(profile), RESULTS.invalid_profile),
-        (dgamma.ok(), RESULTS.invalid_work_of_adhesion),
-        (times_ok(ts), RESULTS.invalid_times),
-        (jnp.all(jnp.isfinite(u)), RESULTS.invalid_displacement),
-        (domain_ok(loading), RESULTS.invalid_loading),
-        (domain_ok(grid), RESULTS.invalid_depth),
+
+    def same_shape():
+        if u.shape != ts.shape:
+            raise ValueError(
+                f"`displacement` [m] must have the shape of `ts` {ts.shape}; got {u.shape}."
+            )
+
+    out = [
+        domain(rheology, RESULTS.invalid_rheology),
+        domain(profile, RESULTS.invalid_profile),
+        constraint(dgamma, RESULTS.invalid_work_of_adhesion),
+        Requirement(lambda: times_ok(ts), RESULTS.invalid_times, lambda: check_times(ts)),
+        Requirement(None, RESULTS.invalid_displacement, same_shape),
+        Requirement(lambda: jnp.all(jnp.isfinite(u)), RESULTS.invalid_displacement,
+                    lambda: check_finite("displacement", u, "m")),
     ]
     if isinstance(loading, DisplacementControl):  # the exact sphere's limit
-        checks.insert(5, (jnp.max(u) <= depth_limit(profile), RESULTS.invalid_displacement))
+        out.append(Requirement(lambda: jnp.max(u) <= depth_limit(profile),
+                               RESULTS.invalid_displacement,
+                               lambda: check_depth_limit("displacement", profile, u)))
+    out += [domain(loading, RESULTS.invalid_loading),
+            domain(grid, RESULTS.invalid_depth)]
     if check_plausibility:
-        ok = domain_plausible(rheology) & domain_plausible(profile)
-        ok = ok & domain_plausible(loading) & domain_plausible(grid)
-        ok = ok & plausible(work_of_adhesion, "work_of_adhesion")
-        ok = ok & plausible(ts, "time", magnitude=True)
-        ok = ok & plausible(u, "length", magnitude=True)
-        checks.append((ok, RESULTS.implausible_input))
-    return checks
+        out += [domain_plausibility(obj, RESULTS.implausible_input)
+                for obj in (rheology, profile, loading, grid)]
+        out += [plausibility("work_of_adhesion", work_of_adhesion, "work_of_adhesion",
+                             RESULTS.implausible_input),
+                plausibility("ts", ts, "time", RESULTS.implausible_input, magnitude=True),
+                plausibility("displacement", u, "length", RESULTS.implausible_input,
+                             magnitude=True)]
+    return out
 
 
 def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
               check_plausibility):
     with unchecked():
-        checks = _input_checks(rheology, profile, work_of_adhesion, ts, u, loading, grid,
-                               check_plausibility)
+        checks = traced_checks(_requirements(rheology, profile, work_of_adhesion, ts, u,
+                                             loading, grid, check_plausibility))
         sol = _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method)
         # the contact radii reached: plausible lengths, within what the profile describes
         if check_plausibility:
@@ -235,11 +238,7 @@ def _simulate(rheology, profile, work_of_adhesion, ts, u, loading, grid, method,
                            RESULTS.implausible_input))
         checks.append((contact_radius_valid(profile, sol.contact_radius),
                        RESULTS.beyond_profile))
-    inputs_ok = jnp.asarray(True)
-    for ok, _ in checks:
-        inputs_ok = inputs_ok & ok
-    sol = eqx.tree_at(lambda s: s.result, sol, fold_results(sol.result, checks))
-    return nan_where(jnp.logical_not(inputs_ok), sol)
+    return fold_checks(sol, checks)
 
 
 def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
@@ -320,7 +319,7 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
         d1=jnp.where(safe, pre.d1, -depth),
     )
     jump = loading.refine_jumpoff(
-        model, model.refine_jumpoff(pre_safe), pre_safe, safe, i_j, ts, u, d, radius, force
+        model, refine_jumpoff(model, pre_safe), pre_safe, safe, i_j, ts, u, d, radius, force
     )
     jumpoff_time = jnp.where(found, jump.time, nan)
     jumpoff_disp = jnp.where(found, jump.displacement, nan)
@@ -356,7 +355,7 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
     )
     ends = jnp.stack([jnp.where(before, min_pair.radius_at, 0.0),
                       jnp.where(after, a_after, 0.0)])
-    f_steps = jax.vmap(model.front_minimum)(steps_pre, ends)
+    f_steps = jax.vmap(lambda pre, end: front_minimum(model, pre, end))(steps_pre, ends)
     f_jump = jnp.where(found, jumpoff_force, jnp.inf)
     max_tensile = smallest(jnp.stack([f_jump, f_steps[0], f_steps[1], f_sample]))
 

@@ -75,6 +75,7 @@ from ._options import (
     FitOptions,
     keyword_signature,
     make_solver,
+    padded_indices,
     split_keywords,
 )
 from ._parameters import Parameterisation, make_parameterisation
@@ -190,7 +191,7 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     if n_dev == 1:
         with jax.default_device(devices[0]):
             return _solve_batch(spec, params, datas, z0s, limits, **opts)
-    fill = np.minimum(np.arange(n_dev * share), n - 1)
+    fill = padded_indices(n, n_dev * share)
 
     def split(x):
         x = jnp.asarray(x)[fill]
@@ -610,7 +611,7 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     """The global search and the local rounds of equally shaped `problems` in one compiled
     pool (:func:`solve_batch`), padded to `size` problems (the last one repeated; its
     copies are dropped): the host :class:`Solution` of every start of each problem."""
-    fill = problems + [problems[-1]] * (size - len(problems))
+    fill = [problems[j] for j in padded_indices(len(problems), size)]
     n_z = len(fill[0].zs)
     params = _stack([pb.param for pb in fill], n_z)
     datas = _stack([pb.data for pb in fill], n_z)
@@ -667,7 +668,7 @@ def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions):
     """Arguments and keywords of :func:`_evaluate_chunk` for `problems` at internal
     coordinates `us`, padded to `size` problems (the last one repeated): one compilation
     serves every chunk."""
-    fill = list(range(len(problems))) + [len(problems) - 1] * (size - len(problems))
+    fill = padded_indices(len(problems), size).tolist()
     profile = options.probe
     radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
     pb0 = problems[0]

@@ -419,6 +419,13 @@ class BatchOptions(_Options):
         return min(_CPU_LANES_PER_PROBLEM * problems, _CPU_LANES, problems * starts)
 
 
+def padded_indices(n: int, size: int) -> np.ndarray:
+    """The indices of `n` items padded to `size` (>= n) by repeating the last: the one
+    padding rule of a chunk of problems (every chunk one compiled shape; the copies'
+    results are dropped) and of a chunk's share per device."""
+    return np.minimum(np.arange(max(int(size), int(n))), int(n) - 1)
+
+
 #: The platform defaults of :class:`BatchOptions` (see its docstring).
 _CPU_CHUNK, _CPU_LANES, _CPU_LANES_PER_PROBLEM, _ACCELERATOR_CHUNK = 8, 64, 8, 4096
 

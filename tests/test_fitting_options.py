@@ -144,3 +144,12 @@ def test_schedule_by_platform():
     assert [gpu.lanes(p, 16) for p in (1, 4096)] == [16, 65_536]
     assert fitting.BatchOptions(chunk=3, workers=5, devices=[Gpu()]).chunk_for(100) == 3
     assert fitting.BatchOptions(workers=5, devices=[Gpu()]).lanes(100, 16) == 5
+
+
+def test_chunk_padding_repeats_the_last_item():
+    # the one padding rule of a chunk: the items in order, then the last repeated
+    from fitting._options import padded_indices
+
+    assert padded_indices(3, 5).tolist() == [0, 1, 2, 2, 2]
+    assert padded_indices(4, 4).tolist() == [0, 1, 2, 3]
+    assert padded_indices(1, 3).tolist() == [0, 0, 0]

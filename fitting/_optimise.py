@@ -70,6 +70,7 @@ from ._curve import Curve
 from ._least_squares import RESULTS, Solution, run_pool, run_starts
 from ._objective import effective_force, internal_jacobian, predict, residuals
 from ._options import (
+    SEARCH_BYTES_PER_RESIDUAL,
     SINGLE,
     BatchOptions,
     FitOptions,
@@ -552,11 +553,12 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         spec = problems[idx[0]].spec
         _pad(problems)
         pb0 = problems[idx[0]]
-        size = batch.chunk_for(len(idx))
+        n_z = len(pb0.zs)
+        size = batch.chunk_for(len(idx), problem_bytes=SEARCH_BYTES_PER_RESIDUAL * n_z
+                               * int(np.size(pb0.data.ts)))
         # the finish's device work compiles during the search
         args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options)
         model_at = _compile_in_background(_evaluate_chunk, *args, **kw)
-        n_z = len(pb0.zs)
         for c0 in range(0, len(idx), size):
             part = idx[c0:c0 + size]
             t0 = time.perf_counter()

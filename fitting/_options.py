@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 import jaxcontact as jc
+from jaxcontact._devices import memory_limit
 from jaxcontact._validate import plain
 
 from ._least_squares import LBFGS, AbstractLeastSquaresSolver, LevenbergMarquardt
@@ -402,11 +403,21 @@ class BatchOptions(_Options):
             return self.devices[0].platform != "cpu"
         return jax.default_backend() != "cpu"
 
-    def chunk_for(self, problems: int) -> int:
+    def chunk_for(self, problems: int, *, problem_bytes: int | None = None) -> int:
         """Problems per compiled call for `problems` problems: `chunk`, or 8 on a CPU and
-        4,096 on an accelerator; never more than `problems`."""
-        size = self.chunk if self.chunk is not None else (
-            _ACCELERATOR_CHUNK if self.accelerated else _CPU_CHUNK)
+        4,096 on an accelerator, fewer where `problem_bytes` (an upper estimate of one
+        problem's device memory during the search, all its starts) times the chunk would
+        pass half of the device's memory; never more than `problems`."""
+        if self.chunk is not None:
+            size = self.chunk
+        elif not self.accelerated:
+            size = _CPU_CHUNK
+        else:
+            size = _ACCELERATOR_CHUNK
+            device = self.devices[0] if self.devices is not None else jax.local_devices()[0]
+            limit = memory_limit(device)
+            if limit is not None and problem_bytes:
+                size = min(size, max(1, (limit // 2) // int(problem_bytes)))
         return max(1, min(size, problems))
 
     def lanes(self, problems: int, starts: int) -> int:
@@ -428,6 +439,12 @@ def padded_indices(n: int, size: int) -> np.ndarray:
 
 #: The platform defaults of :class:`BatchOptions` (see its docstring).
 _CPU_CHUNK, _CPU_LANES, _CPU_LANES_PER_PROBLEM, _ACCELERATOR_CHUNK = 8, 64, 8, 4096
+
+#: Device memory of the search per start and residual [bytes], an upper estimate: measured
+#: peaks on one H100 were ~320 (relaxed model, 65,536 starts of 60 samples: 1.16 GiB) and
+#: ~490 (full history, 32 cells, 8,192 starts of 200 samples: 0.74 GiB)
+#: (`benchmarks/results/fit_each.md`); twice the larger.
+SEARCH_BYTES_PER_RESIDUAL = 1024
 
 
 #: How :func:`fitting.fit` runs its one problem on the batched path: one problem a

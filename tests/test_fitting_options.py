@@ -143,6 +143,19 @@ def test_schedule_by_platform():
     assert cpu.lanes(1, 4) == 4  # never more lanes than starts
     assert [gpu.lanes(p, 16) for p in (1, 4096)] == [16, 65_536]
     assert fitting.BatchOptions(chunk=3, workers=5, devices=[Gpu()]).chunk_for(100) == 3
+    # an accelerator's chunk keeps the search within half of its memory (a 16 GiB card:
+    # 8 GiB over 16 starts of 600 residuals at 1 KiB each: 873 problems); a CPU's does not
+    # depend on it
+
+    class SmallGpu(Gpu):
+        def memory_stats(self):
+            return {"bytes_limit": 16 * 2**30}
+
+    per = fitting._options.SEARCH_BYTES_PER_RESIDUAL * 16 * 600
+    small = fitting.BatchOptions(devices=[SmallGpu()])
+    assert small.chunk_for(20_000, problem_bytes=per) == (8 * 2**30) // per == 873
+    assert small.chunk_for(20_000, problem_bytes=per // 100) == 4096
+    assert cpu.chunk_for(100, problem_bytes=per * 10**6) == 8
     assert fitting.BatchOptions(workers=5, devices=[Gpu()]).lanes(100, 16) == 5
 
 

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from .._devices import memory_limit
 from .._processes import allgather
 from .._progress import Progress
 from .._validate import plausibility_checks, unchecked
@@ -59,19 +60,8 @@ def default_precision() -> str:
     return "float64" if jax.default_backend() == "cpu" else "float32"
 
 
-@lru_cache(maxsize=8)
-def _memory_limit(device) -> int | None:
-    """The device's memory limit [bytes], None where the backend reports none (the CPU);
-    asked once per device (the query costs a noticeable part of a small sweep)."""
-    try:
-        stats = device.memory_stats()
-    except Exception:  # noqa: BLE001 - backends without memory statistics
-        return None
-    return int(stats["bytes_limit"]) if stats and stats.get("bytes_limit") else None
-
-
 def _device_budget(devices, model, curves) -> int:
-    limit = _memory_limit(devices[0])
+    limit = memory_limit(devices[0])
     if limit is not None:
         return limit // 2
     return int(model.cpu_chunk_budget(curves))

@@ -15,6 +15,7 @@ and only one run at a time may write it (a lock file beside it).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import pathlib
@@ -30,6 +31,8 @@ __all__ = [
     "check_number",
     "parse_assignments",
     "parse_profile",
+    "PROFILE_SHAPES",
+    "profile_help",
     "atomic_write_text",
     "OutputFolder",
     "register_cleanup",
@@ -181,23 +184,89 @@ def parse_assignments(option: str, items, *, ranges: bool = False) -> dict:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class ProfileShape:
+    """One indenter shape of ``--profile NAME:V1[,V2][,MODE]``: its values (`values`: per
+    value its letter, unit and the keywords of :func:`check_number`), optional trailing
+    words (`modes`, the first the default), what it means (`help`), how it is built
+    (`build(values, mode) -> profile`) and whether it is the paraboloid (whose radius
+    the fit reports)."""
+
+    values: tuple[tuple[str, str, dict], ...]
+    help: str
+    build: Callable
+    modes: tuple[str, ...] = ()
+    paraboloid: bool = False
+
+    def form(self, name: str) -> str:
+        """``name:V1,V2[,mode|mode]`` as the options write it."""
+        text = f"{name}:" + ",".join(v[0] for v in self.values)
+        return text + (f"[,{'|'.join(self.modes)}]" if self.modes else "")
+
+
+def _jc():
+    import jaxcontact as jc
+
+    return jc
+
+
+_LENGTH = {"high": 1.0}
+_ANGLE = {"high": 89.9}
+
+#: The indenters of ``--profile``, by name: adding one here adds it to the option's
+#: parsing, its checks, its help and its error messages.
+PROFILE_SHAPES: dict[str, ProfileShape] = {
+    "sphere": ProfileShape(
+        (("R", "m", _LENGTH),), "exact sphere of radius R [m]",
+        lambda v, _m: _jc().Sphere(R=v[0])),
+    "paraboloid": ProfileShape(
+        (("R", "m", _LENGTH),), "paraboloid of radius of curvature R [m], the "
+        "small-indentation sphere", lambda v, _m: _jc().Parabola(R=v[0]), paraboloid=True),
+    "cone": ProfileShape(
+        (("DEG", "degrees", _ANGLE),), "cone of half-opening angle DEG",
+        lambda v, _m: _jc().Cone(half_angle=math.radians(v[0]))),
+    "pyramid4": ProfileShape(
+        (("DEG", "degrees", _ANGLE),), "regular 4-sided pyramid by its half-angle to a face "
+        "(default) or an edge, as the equivalent cone",
+        lambda v, m: _jc().pyramid(math.radians(v[0]), sides=4, angle=m),
+        modes=("face", "edge")),
+    "pyramid3": ProfileShape(
+        (("DEG", "degrees", _ANGLE),), "regular 3-sided pyramid, likewise",
+        lambda v, m: _jc().pyramid(math.radians(v[0]), sides=3, angle=m),
+        modes=("face", "edge")),
+    "flat": ProfileShape(
+        (("A", "m", _LENGTH),), "flat punch of radius A [m]",
+        lambda v, _m: _jc().FlatPunch(radius=v[0])),
+    "power": ProfileShape(
+        (("C", "m^(1-N)", {}), ("N", "1", {"low": 1.0, "low_open": False, "high": 20.0})),
+        "power law f = C r^N", lambda v, _m: _jc().PowerLaw(c=v[0], n=v[1])),
+}
+
+
+def profile_forms() -> str:
+    """The shapes as the messages list them: ``sphere:R, ..., flat:A or power:C,N``."""
+    forms = [shape.form(name) for name, shape in PROFILE_SHAPES.items()]
+    return ", ".join(forms[:-1]) + " or " + forms[-1]
+
+
+def profile_help() -> str:
+    """The help text of ``--profile``, from :data:`PROFILE_SHAPES`."""
+    return "indenter: " + "; ".join(f"{shape.form(name)} ({shape.help})"
+                                    for name, shape in PROFILE_SHAPES.items())
+
+
 def parse_profile(spec: str | None, radius: float | None):
     """The indenter of ``--profile`` / ``--radius`` as a jaxcontact profile.
 
-    ``sphere:R`` (the exact sphere of radius R [m], `jc.Sphere`), ``paraboloid:R``
-    (paraboloid of radius of curvature R [m], the small-indentation sphere, `jc.Parabola`),
+    The shapes of :data:`PROFILE_SHAPES`: ``sphere:R`` (the exact sphere of radius R [m],
+    `jc.Sphere`), ``paraboloid:R`` (`jc.Parabola`, the small-indentation sphere),
     ``cone:DEG`` (half-opening angle [degrees]), ``pyramid4:DEG[,face|edge]`` and
-    ``pyramid3:DEG[,face|edge]`` (regular 4- or 3-sided pyramid by its half-angle [degrees]
-    to a face (default) or an edge, as the equivalent cone, `jc.pyramid`), ``flat:A`` (flat
+    ``pyramid3:DEG[,face|edge]`` (`jc.pyramid`, the equivalent cone), ``flat:A`` (flat
     punch of radius A [m]), ``power:C,N`` (f = C r^N, C in m^(1-N)).
     ``--radius R`` alone is ``paraboloid:R`` (as before the exact sphere existed, so that
     earlier results are reproduced); giving both is an error (they could disagree).
     Returns ``(profile, radius_or_None)``: the radius only for the paraboloid.
     """
-    import jaxcontact as jc
-
-    shapes = ("sphere:R, paraboloid:R, cone:DEG, pyramid4:DEG[,face|edge], "
-              "pyramid3:DEG[,face|edge], flat:A or power:C,N")
     if spec is None:
         if radius is None:
             raise UsageError("argument --radius/--profile: give the indenter, e.g. "
@@ -206,44 +275,29 @@ def parse_profile(spec: str | None, radius: float | None):
         if radius > 1.0:
             raise UsageError(f"argument --radius: {radius} m looks like a unit mistake "
                              "(lengths are in metres, e.g. 5e-6 for 5 µm)")
-        return jc.Parabola(R=float(radius)), float(radius)
+        return _jc().Parabola(R=float(radius)), float(radius)
     if radius is not None:
         raise UsageError("argument --radius: not together with --profile (use paraboloid:R "
                          "or sphere:R)")
     kind, _, rest = spec.partition(":")
     tokens = rest.split(",") if rest else []
-    angle = "face"
-    if kind in ("pyramid3", "pyramid4") and len(tokens) == 2 and tokens[1].strip() in (
-            "face", "edge"):
-        angle = tokens.pop().strip()
+    shape = PROFILE_SHAPES.get(kind)
+    mode = shape.modes[0] if shape is not None and shape.modes else None
+    if (shape is not None and shape.modes and len(tokens) == len(shape.values) + 1
+            and tokens[-1].strip() in shape.modes):
+        mode = tokens.pop().strip()
     try:
         vals = [float(x) for x in tokens]
     except ValueError:
         raise UsageError(f"argument --profile: bad numbers in {spec!r}") from None
-    want = {"sphere": 1, "paraboloid": 1, "cone": 1, "pyramid3": 1, "pyramid4": 1, "flat": 1,
-            "power": 2}
-    if kind not in want:
-        raise UsageError(f"argument --profile: unknown shape {kind!r}; use {shapes}")
-    if len(vals) != want[kind]:
-        raise UsageError(f"argument --profile: {kind} takes {want[kind]} number(s); got {spec!r}")
-    if kind == "sphere":
-        check_number("--profile sphere:R", vals[0], "m", high=1.0)
-        return jc.Sphere(R=vals[0]), None
-    if kind == "paraboloid":
-        check_number("--profile paraboloid:R", vals[0], "m", high=1.0)
-        return jc.Parabola(R=vals[0]), vals[0]
-    if kind == "cone":
-        check_number("--profile cone:DEG", vals[0], "degrees", high=89.9)
-        return jc.Cone(half_angle=math.radians(vals[0])), None
-    if kind in ("pyramid3", "pyramid4"):
-        check_number(f"--profile {kind}:DEG", vals[0], "degrees", high=89.9)
-        return jc.pyramid(math.radians(vals[0]), sides=int(kind[-1]), angle=angle), None
-    if kind == "flat":
-        check_number("--profile flat:A", vals[0], "m", high=1.0)
-        return jc.FlatPunch(radius=vals[0]), None
-    check_number("--profile power:C", vals[0], "m^(1-N)")
-    check_number("--profile power:N", vals[1], "1", low=1.0, low_open=False, high=20.0)
-    return jc.PowerLaw(c=vals[0], n=vals[1]), None
+    if shape is None:
+        raise UsageError(f"argument --profile: unknown shape {kind!r}; use {profile_forms()}")
+    n = len(shape.values)
+    if len(vals) != n:
+        raise UsageError(f"argument --profile: {kind} takes {n} number(s); got {spec!r}")
+    for (label, unit, limits), value in zip(shape.values, vals, strict=True):
+        check_number(f"--profile {kind}:{label}", value, unit, **limits)
+    return shape.build(vals, mode), (vals[0] if shape.paraboloid else None)
 
 
 # --------------------------------------------------------------------------------------

@@ -55,6 +55,7 @@ from ._common import (
     check_process_arguments,
     parse_assignments,
     parse_profile,
+    profile_help,
     several_processes,
     start_processes,
 )
@@ -98,11 +99,7 @@ def add_fit_arguments(parser):
                              "--profile paraboloid:M (kept so that earlier results reproduce); "
                              "for the exact sphere give --profile sphere:M")
     parser.add_argument("--profile", default=None, metavar="SHAPE",
-                        help="indenter: sphere:R (exact sphere [m]), paraboloid:R [m], "
-                             "cone:DEG (half-opening angle, degrees), pyramid4:DEG[,face|edge] "
-                             "or pyramid3:DEG[,face|edge] (half-angle to a face (default) or "
-                             "an edge, degrees: the equivalent cone), flat:A (punch radius "
-                             "[m]) or power:C,N (f = C r^N)")
+                        help=profile_help())
     parser.add_argument("--model", choices=("relaxed", "history"), default="relaxed",
                         help="relaxed (default, as fitting.fit): the retract after a hold "
                              "long enough to relax (the report warns when the curves have no "

@@ -50,3 +50,25 @@ def test_bad_profiles(spec, match):
         parse_profile(spec, None)
     with pytest.raises(UsageError, match="paraboloid:R or sphere:R"):
         parse_profile("sphere:1e-5", 1e-5)
+
+
+def test_a_shape_registered_once_is_parsed_checked_listed_and_helped(monkeypatch):
+    # adding an indenter to the command line is one entry of PROFILE_SHAPES: parsing,
+    # the range checks of its values, the list in the error messages and the help follow
+    from jaxcontact_cli import _common
+
+    shapes = dict(_common.PROFILE_SHAPES)
+    shapes["blunt"] = _common.ProfileShape(
+        (("R", "m", {"high": 1.0}), ("DEG", "degrees", {"high": 89.9})),
+        "a test shape", lambda v, _m: jc.Cone(half_angle=math.radians(v[1])))
+    monkeypatch.setattr(_common, "PROFILE_SHAPES", shapes)
+    prof, radius = parse_profile("blunt:1e-6,30", None)
+    assert isinstance(prof, jc.Cone) and radius is None
+    assert float(prof.half_angle) == pytest.approx(math.radians(30))
+    with pytest.raises(UsageError, match="blunt:DEG"):
+        parse_profile("blunt:1e-6,95", None)
+    with pytest.raises(UsageError, match="blunt takes 2 number"):
+        parse_profile("blunt:1e-6", None)
+    with pytest.raises(UsageError, match="or blunt:R,DEG"):
+        parse_profile("ellipse:1", None)
+    assert "blunt:R,DEG (a test shape)" in _common.profile_help()

@@ -355,6 +355,15 @@ def test_batched_finish_equals_the_per_curve_finish(curves):
     assert {d["name"]: d for d in res.results[1].derived}["tau"]["status"] == "ok"
 
 
+def _free_port() -> int:
+    """A free TCP port on this machine (the coordinator of two JAX processes)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
 TWO_PROCESSES = textwrap.dedent(
     """
     import json, sys, warnings, jax
@@ -381,11 +390,7 @@ def test_two_processes_match_one(curves):
     # after jax.distributed.initialize two processes share the curves (each fits every
     # second one), and each returns every curve's result: the same as one process, the
     # failed curve in its place
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = _free_port()
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=root)
     procs = [subprocess.Popen([sys.executable, "-c", TWO_PROCESSES, f"127.0.0.1:{port}",
@@ -410,13 +415,9 @@ def test_two_processes_match_one(curves):
 def test_force_map_shared_by_two_processes_through_the_command_line(tmp_path):
     # `jaxcontact fit MAP --coordinator ...` in two processes: process 0 writes the output
     # folder (the others nothing), and its map equals the one-process map of the same file
-    import socket
-
     import xarray as xr
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = _free_port()
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=root, JAXCONTACT_NO_CACHE="1")
     args = [sys.executable, "-m", "jaxcontact_cli", "fit",

@@ -96,6 +96,7 @@ from ._spec import (
     normalise_names,
     offsets,
     parameter_info,
+    rheology_kind,
     rheology_name,
 )
 from ._start import (
@@ -803,8 +804,6 @@ def _sort_arms(spec, param, u, J):
     order; a reported ``tau_1 < tau_2 < ...`` does; the arms of the rheology's
     :attr:`fitting._spec.RheologyKind.arm_indices`). Only when every arm is free with the
     same bounds, so that the order is the only difference between them."""
-    from ._spec import rheology_kind
-
     arm_indices = rheology_kind(spec).arm_indices
     if arm_indices is None or spec.arms < 2:
         return u, J

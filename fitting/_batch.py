@@ -42,6 +42,7 @@ from ._curve import Curve
 from ._io_afm import FailedCurve
 from ._optimise import identify
 from ._options import BatchOptions, FitOptions, keyword_signature, split_keywords
+from ._prepare import contact_point_mode
 from ._quality import warn_summary
 from ._result import FitResult
 from ._spec import parameter_info, rheology_name
@@ -226,6 +227,9 @@ def fit_each(curves: Sequence[Curve | FailedCurve], *, options: FitOptions | Non
     # on its own devices, and every process gets all results
     n_proc, rank = jax.process_count(), jax.process_index()
     mine = good[rank::n_proc]
+    if n_proc > 1 and options.contact_point is None:  # decided over all curves, as alone
+        mode = contact_point_mode(None, [items[i] for i in good])
+        options = options.replace(contact_point="fit" if mode == "fit" else "detect")
     show = Progress(options.progress and rank == 0, "fit-each",
                     total=len(mine)).stage  # (stage, done)
     out = identify([[items[i]] for i in mine], options, batch, isolate=True, warn=False,

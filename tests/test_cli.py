@@ -254,6 +254,7 @@ def test_tune_xla_cpu():
     assert f_tuned == pytest.approx(f_default, rel=1e-12)
 
 
+@pytest.mark.slow  # extended (the default run's time): test_tune_xla_cpu checks the mechanism
 def test_only_fit_gets_the_xla_tuning():
     # the fitting code generator slows the forward models down: `simulate`, `sweep` and
     # `demo` must start JAX with XLA's defaults, `fit` with `fitting.XLA_CPU_FLAGS`

@@ -297,6 +297,8 @@ def test_retract_exact_sphere_relaxed_start_and_paraboloid_limit():
     assert bool(jnp.all(jnp.isnan(lanes.force[2])))
 
 
+@pytest.mark.slow  # extended (the default run's time); the same limits of retract:
+# test_retract_exact_sphere_relaxed_start_and_paraboloid_limit
 def test_simulate_exact_sphere_long_hold_and_paraboloid_limit():
     s = jc.Sphere(R)
     t_app, t_hold = 1.0, 30.0  # approach 1 s, hold 30 tau, lift over 60 s (to -d0)

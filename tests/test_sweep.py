@@ -234,7 +234,11 @@ def test_points_and_list_of_sets_match_grid(relaxed):
 
 @pytest.mark.parametrize(("model", "curves"), [(jc.RelaxedStart(samples=500), False),
                                              (jc.RelaxedStart(samples=500), True),
-                                             (jc.ApproachHoldLift(samples=200, cells=16), False)])
+                                             # extended (the default run's time): the
+                                             # history model's compilation, ~17 s
+                                             pytest.param(jc.ApproachHoldLift(samples=200,
+                                                                              cells=16), False,
+                                                          marks=pytest.mark.slow)])
 def test_default_cpu_chunk_fits_the_models_budget(model, curves):
     # the default chunk on a CPU device follows the model's `cpu_chunk_budget` through an
     # upper estimate of the bytes per curve: XLA's own account of the compiled chunk

@@ -51,6 +51,31 @@ class _host_method:
         return self.fn if obj is None else functools.partial(self.fn, obj)
 
 
+def free_to_internal(xp, z, lo, hi, ref):
+    r"""The free coordinates `z` to internal coordinates (`xp`: `jax.numpy`, traceable, or
+    `numpy` on the host), with the free parameters' internal bounds `lo`, `hi` (±inf:
+    unbounded) and reference `ref` (broadcast against `z`): the logistic
+    $u = l + (h - l)\,\sigma(z)$ when bounded, $u = u_\mathrm{ref} + z$ otherwise.
+    Returns `(bounded, lo_s, hi_s, sigma, u)`."""
+    bounded = xp.isfinite(lo) & xp.isfinite(hi)
+    lo_s = xp.where(bounded, lo, 0.0)
+    hi_s = xp.where(bounded, hi, 1.0)
+    sig = jax.nn.sigmoid(z) if xp is jnp else special.expit(z)  # the logistic
+    return bounded, lo_s, hi_s, sig, xp.where(bounded, lo_s + (hi_s - lo_s) * sig, ref + z)
+
+
+def internal_to_free(th, lo, hi, ref) -> np.ndarray:
+    """The inverse of :func:`free_to_internal` in numpy: free coordinates of the free
+    parameters' internal coordinates `th` (clipped strictly inside the bounds)."""
+    bounded = np.isfinite(lo) & np.isfinite(hi)
+    out = th - ref
+    if np.any(bounded):
+        span = np.where(bounded, hi - lo, 1.0)
+        s = np.clip((th - np.where(bounded, lo, 0.0)) / span, 1e-9, 1 - 1e-9)
+        out = np.where(bounded, np.log(s) - np.log1p(-s), out)
+    return out
+
+
 class Parameterisation(eqx.Module):
     """Free vector ↔ internal coordinates ↔ natural parameters (see the module docstring).
 
@@ -73,16 +98,9 @@ class Parameterisation(eqx.Module):
         # module built at every access, on the host path of every curve)
         # one transform for jax.numpy (traced, differentiable) and numpy (host: no
         # dispatch of eager device operations, per start and per curve)
-        idx = list(self.free)
-        reference = xp.asarray(self.reference)
-        ref = reference[xp.asarray(idx)]
-        lo = xp.asarray(self.lower)[xp.asarray(idx)]
-        hi = xp.asarray(self.upper)[xp.asarray(idx)]
-        bounded = xp.isfinite(lo) & xp.isfinite(hi)
-        lo_s = xp.where(bounded, lo, 0.0)
-        hi_s = xp.where(bounded, hi, 1.0)
-        sig = jax.nn.sigmoid(z) if xp is jnp else special.expit(z)  # the logistic
-        return bounded, lo_s, hi_s, sig, xp.where(bounded, lo_s + (hi_s - lo_s) * sig, ref + z)
+        idx = xp.asarray(list(self.free))
+        return free_to_internal(xp, z, xp.asarray(self.lower)[idx],
+                                xp.asarray(self.upper)[idx], xp.asarray(self.reference)[idx])
 
     def internal(self, z: Float[Array, " k"]) -> Float[Array, " p"]:
         """Internal coordinates $u$ of all parameters at the free vector `z` (traceable)."""
@@ -144,16 +162,8 @@ class Parameterisation(eqx.Module):
         `u`: shape `(p,)` or `(..., p)`)."""
         u = np.asarray(u, dtype=float)
         idx = list(self.free)
-        ref = np.asarray(self.reference)[idx]
-        lo, hi = np.asarray(self.lower)[idx], np.asarray(self.upper)[idx]
-        th = u[..., idx]
-        bounded = np.isfinite(lo) & np.isfinite(hi)
-        out = th - ref
-        if np.any(bounded):
-            span = np.where(bounded, hi - lo, 1.0)
-            s = np.clip((th - np.where(bounded, lo, 0.0)) / span, 1e-9, 1 - 1e-9)
-            out = np.where(bounded, np.log(s) - np.log1p(-s), out)
-        return out
+        return internal_to_free(u[..., idx], np.asarray(self.lower)[idx],
+                                np.asarray(self.upper)[idx], np.asarray(self.reference)[idx])
 
     @_host_method
     def at_bound(self, u) -> list[str | None]:

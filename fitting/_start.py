@@ -80,11 +80,11 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from scipy import special
 
 import jaxcontact as jc
 
 from ._curve import Curve
+from ._parameters import free_to_internal, internal_to_free
 from ._spec import ModelSpec, n_material, parameter_info, rheology_kind, rheology_name
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
@@ -348,12 +348,9 @@ def local_starts_batch(params, z_end: np.ndarray, chi2: np.ndarray, n: int, *,
     lower = np.stack([np.asarray(q.lower, dtype=float) for q in params])[:, free]
     upper = np.stack([np.asarray(q.upper, dtype=float) for q in params])[:, free]
     reference = np.stack([np.asarray(q.reference, dtype=float) for q in params])[:, free]
-    bounded = np.isfinite(lower) & np.isfinite(upper)
-    lo_s, hi_s = np.where(bounded, lower, 0.0), np.where(bounded, upper, 1.0)
-    u0 = np.where(bounded, lo_s + (hi_s - lo_s) * special.expit(best), reference + best)
+    u0 = free_to_internal(np, best, lower, upper, reference)[-1]
     width = widen[:, None] * np.where(np.asarray(p0.log)[free], LOCAL_LOG_WIDTH,
                                       LOCAL_LINEAR_WIDTH)
-    span = np.where(bounded, upper - lower, 1.0)
     out = np.empty((n_p, n, k))
     for count in np.unique(pattern):  # problems with as many pattern moves share a design
         sel = pattern == count
@@ -366,11 +363,9 @@ def local_starts_batch(params, z_end: np.ndarray, chi2: np.ndarray, n: int, *,
         design = latin_hypercube(m, k, seed=seed) * 2.0 - 1.0
         u = np.clip(u0[sel][:, None] + width[sel][:, None] * design[None],
                     lower[sel][:, None], upper[sel][:, None])
-        # back to free vectors (`Parameterisation.z_of`, vectorised over the problems)
-        frac = np.clip((u - lo_s[sel][:, None]) / span[sel][:, None], 1e-9, 1 - 1e-9)
-        out[sel, head.shape[1]:] = np.where(bounded[sel][:, None],
-                                            np.log(frac) - np.log1p(-frac),
-                                            u - reference[sel][:, None])
+        out[sel, head.shape[1]:] = internal_to_free(u, lower[sel][:, None],
+                                                    upper[sel][:, None],
+                                                    reference[sel][:, None])
     return out
 
 

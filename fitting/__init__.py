@@ -41,7 +41,9 @@ from ._objective import residuals as residuals
 from ._optimise import fit as fit
 from ._optimise import solve as solve
 from ._optimise import solve_batch as solve_batch
+from ._options import DEFAULT_EXPLORE_STEPS as DEFAULT_EXPLORE_STEPS
 from ._options import DEFAULT_LOCAL_ROUNDS as DEFAULT_LOCAL_ROUNDS
+from ._options import DEFAULT_SCREEN as DEFAULT_SCREEN
 from ._options import DEFAULT_STARTS as DEFAULT_STARTS
 from ._options import OPTIMISERS as OPTIMISERS
 from ._options import BatchOptions as BatchOptions

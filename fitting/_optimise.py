@@ -106,6 +106,7 @@ from ._start import (
     initial_guess,
     local_starts_batch,
     nested_starts,
+    search_points,
     search_starts,
 )
 from ._uncertainty import (
@@ -343,6 +344,9 @@ class _Problem:
     zs: np.ndarray
     curves: list = dataclasses.field(default_factory=list)
     notes: list = dataclasses.field(default_factory=list)
+    #: with ``screen``: the screened points (free vectors, rows), whose best replace the
+    #: random starts, rows 1 to `n_starts` - 1 of `zs`
+    pool: np.ndarray | None = None
 
 
 def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
@@ -378,7 +382,13 @@ def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
                                           "force_offset": scales.force_range}, host=True)
     zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
                                        for s in starts]))
-    return _Problem(spec, info, names, param, data, zs, curves, notes)
+    pool = None
+    if o.screen:
+        points = search_points(spec, scales, o.screen, seed=o.seed)
+        pool = param.z_of(param.to_internal(np.stack(
+            [points[n] if n in points else np.full(o.screen, guess[n]) for n in names],
+            axis=1)))
+    return _Problem(spec, info, names, param, data, zs, curves, notes, pool)
 
 
 def _contain(bounds, starts, names) -> None:
@@ -425,20 +435,29 @@ def _improved(chi2, before: float) -> bool:
 
 
 def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: int,
-                  seed: int, max_steps: int, show=None) -> list[Solution]:
+                  seed: int, max_steps: int, explore_steps: int, limits=None,
+                  show=None) -> list[Solution]:
     """The local rounds of each problem after its global search (one home for :func:`fit`
     and :func:`fitting.fit_each`).
 
     `params`: the problems' parameterisations; `outs`: their global searches (host
-    :class:`Solution`, one lane per start); `run(starts, limits)`: one compiled call of
-    the pool on `n` starts per problem with a step limit per start, returning a host
-    :class:`Solution` per problem. Each round gives every problem whose rounds are not
-    done `n` starts (:func:`fitting._start.local_starts`) with `max_steps` each; a problem
-    whose rounds are done gets limit 0 (not run: it costs one lane-step a start). Returns
+    :class:`Solution`, one lane per start) and `limits` the step limit each start ran with
+    (default `max_steps`); `run(starts, limits)`: one compiled call of the pool on `n`
+    starts per problem with a step limit per start, returning a host :class:`Solution`
+    per problem. Each round gives every problem whose rounds are not done `n` starts
+    (:func:`fitting._start.local_starts`): the first, the best end point continued, with
+    `max_steps`, the others (exploring) with `explore_steps`; a problem whose rounds are
+    done gets limit 0 (not run: it costs one lane-step a start). After the rounds, a
+    problem whose best end point stopped unconverged at an exploring limit is continued
+    from there with `max_steps` (one more call, only if some problem needs it). Returns
     the merged solutions.
     """
     outs = list(outs)
+    ran = [np.full(len(o.chi2), max_steps, np.int32) if limits is None
+           else np.asarray(limits[j], np.int32) for j, o in enumerate(outs)]
     rounds = [LocalRounds() for _ in outs]
+    explore = np.full(n, min(explore_steps, max_steps), np.int32)
+    explore[0] = max_steps
     for k in range(local_rounds):
         if all(r.done for r in rounds):
             break
@@ -453,17 +472,32 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
         starts = [np.asarray(o.z[:1]).repeat(n, axis=0) for o in outs]
         for i, j in enumerate(going):
             starts[j] = batch[i]
-        limits = [np.full(n, 0 if r.done else max_steps, dtype=np.int32) for r in rounds]
-        new = run(starts, limits)
+        new = run(starts, [np.zeros(n, np.int32) if r.done else explore for r in rounds])
         for j, r in enumerate(rounds):  # a problem whose rounds are done keeps its lanes
             if r.done:
                 continue
             widen = r.widen
             outs[j] = outs[j].concat(new[j])
+            ran[j] = np.concatenate([ran[j], explore])
             r.update(_improved(outs[j].chi2, before[j]))
             if show is not None:
                 show(f"local round {k + 1} (width x{widen:g}): chi2 {before[j]:.8g} -> "
                      f"{_best_loss(outs[j].chi2):.8g}")
+    # the best end point of a problem stopped by an exploring limit: continued
+    best = [int(np.argmin(np.where(np.isfinite(o.chi2), o.chi2, np.inf))) for o in outs]
+    cut = [int(o.result[b]) == RESULTS.max_steps_reached and ran[j][b] < max_steps
+           for j, (o, b) in enumerate(zip(outs, best, strict=True))]
+    if any(cut):
+        starts = [np.asarray(o.z[b:b + 1]).repeat(n, axis=0) for o, b in zip(outs, best,
+                                                                                strict=True)]
+        lim = np.zeros(n, np.int32)
+        lim[0] = max_steps
+        new = run(starts, [lim if c else np.zeros(n, np.int32) for c in cut])
+        for j, c in enumerate(cut):
+            if c:
+                outs[j] = outs[j].concat(new[j].take(slice(0, 1)))
+                if show is not None:
+                    show(f"continued the best start: chi2 {_best_loss(outs[j].chi2):.8g}")
     return outs
 
 
@@ -616,6 +650,8 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     copies are dropped): the host :class:`Solution` of every start of each problem."""
     fill = [problems[j] for j in padded_indices(len(problems), size)]
     n_z = len(fill[0].zs)
+    if fill[0].pool is not None:
+        fill = _screened(fill, options)
     params = _stack([pb.param for pb in fill], n_z)
     datas = _stack([pb.data for pb in fill], n_z)
     spec = fill[0].spec
@@ -627,12 +663,54 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
             optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True))
         return [out.take(slice(j * n_z, (j + 1) * n_z)) for j in range(len(starts))]
 
-    outs = run([pb.zs for pb in fill], [np.full(n_z, options.max_steps, np.int32)] * size)
+    # with local rounds to follow, the global search explores (its best is continued)
+    first = np.full(n_z, options.max_steps if options.local_rounds == 0
+                    else min(options.explore_steps, options.max_steps), np.int32)
+    outs = run([pb.zs for pb in fill], [first] * size)
     # a problem whose rounds are done is not run
     outs = _local_search([pb.param for pb in fill], outs, run, n=n_z,
                          local_rounds=options.local_rounds, seed=options.seed,
-                         max_steps=options.max_steps, show=show)
+                         max_steps=options.max_steps, explore_steps=options.explore_steps,
+                         limits=[first] * size, show=show)
     return outs[:len(problems)]
+
+
+#: Screened points evaluated at once per problem (bounds the memory of a screen like that
+#: of a search's lanes).
+SCREEN_BATCH = 64
+
+
+@jax.jit
+def _screen_chi2(spec, params, datas, pools):
+    r"""$\chi^2$ at every screened point of every problem (leading axis of `params`,
+    `datas`, `pools`; `pools`: free vectors `(problems, points, k)`), `(problems, points)`;
+    non-finite as $\infty$."""
+    fn = _fn(spec)
+
+    def one(param, data, pool):
+        chi2 = jax.lax.map(lambda z: jnp.sum(fn(z, (param, data)) ** 2), pool,
+                           batch_size=min(SCREEN_BATCH, pool.shape[0]))
+        return jnp.where(jnp.isfinite(chi2), chi2, jnp.inf)
+
+    return jax.vmap(one)(params, datas, pools)
+
+
+def _screened(problems: list[_Problem], options: FitOptions) -> list[_Problem]:
+    r"""`problems` with their random starts (rows 1 to `n_starts` - 1 of `zs`) replaced by
+    the best of their screened points (:attr:`_Problem.pool`, in order of $\chi^2$): one
+    compiled call for the chunk."""
+    chi2 = np.asarray(jax.device_get(_screen_chi2(
+        problems[0].spec, _stack([pb.param for pb in problems], 1),
+        _stack([pb.data for pb in problems], 1),
+        jnp.asarray(np.stack([pb.pool for pb in problems])))))
+    k = options.n_starts - 1
+    best = np.argsort(chi2, axis=1, kind="stable")[:, :k]
+    out = []
+    for pb, rows in zip(problems, best, strict=True):
+        zs = pb.zs.copy()
+        zs[1:1 + k] = pb.pool[rows]
+        out.append(dataclasses.replace(pb, zs=zs))
+    return out
 
 
 def _stack(trees, repeat: int):

@@ -30,7 +30,7 @@ from ._prepare import CONTACT_POINT, check_indentation_range, check_segments
 from ._spec import make_spec, rheology_kind, rheology_name
 
 __all__ = ["FitOptions", "BatchOptions", "OPTIMISERS", "DEFAULT_STARTS",
-           "DEFAULT_LOCAL_ROUNDS", "make_solver"]
+           "DEFAULT_LOCAL_ROUNDS", "DEFAULT_SCREEN", "DEFAULT_EXPLORE_STEPS", "make_solver"]
 
 #: Default number of starts of the global search.
 DEFAULT_STARTS = 16
@@ -40,6 +40,13 @@ DEFAULT_LOCAL_ROUNDS = 3
 
 #: Default iterations per start.
 DEFAULT_MAX_STEPS = 200
+
+#: Default iterations of an exploring start (every start but the continued best of a local
+#: round, and with local rounds the global search's).
+DEFAULT_EXPLORE_STEPS = 200
+
+#: Default number of screened points of the global search (0: not screened).
+DEFAULT_SCREEN = 0
 
 #: The optimisers by name: each makes its least-squares solver from the tolerances.
 _SOLVERS: dict[str, Callable[..., AbstractLeastSquaresSolver]] = {
@@ -210,6 +217,12 @@ class FitOptions(_Options):
     - `force_offset`: also fit a force offset $F_0$ [N] (a baseline error). Default False.
     - `n_starts`: starts of the global search, an integer >= 1 (default
       :data:`DEFAULT_STARTS`; `None` is the default).
+    - `screen`: screened points of the global search, 0 or an integer >= `n_starts`
+      (default :data:`DEFAULT_SCREEN`; `None` is the default): $\chi^2$ is evaluated (no
+      Jacobian, no iteration: about a fifth of a Levenberg–Marquardt step each) at `screen`
+      points of the search's Latin hypercube, and the `n_starts` − 1 random starts are the
+      best of them (the first start stays the data-based guess). 0: the random starts are
+      the hypercube's first `n_starts` − 1 points, unscreened.
     - `max_samples`: largest number of samples per curve, an integer >= 4 (default `None`:
       by model, :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`); subsampled without
       averaging.
@@ -225,6 +238,12 @@ class FitOptions(_Options):
     - `cells`: foundation grid of the history model, an integer >= 2 (default 32).
     - `max_steps`: iterations per start, an integer >= 1 (default 200; `None` is the
       default).
+    - `explore_steps`: iterations of an exploring start, an integer >= 1 (default
+      :data:`DEFAULT_EXPLORE_STEPS`; `None` is the default; at most `max_steps`): with
+      local rounds, every start of the global search and of a round except the first of
+      a round (the best end point so far, continued with `max_steps`); a best end point
+      stopped at this limit is continued with `max_steps` after the rounds. A start that
+      crawls does not hold the search: the best one goes on.
     - `optimiser`: "lm" (Levenberg–Marquardt, default) or "lbfgs" (L-BFGS), see
       :data:`OPTIMISERS` and :meth:`solver`.
     - `rtol`: convergence tolerance (relative change of $\chi^2$, and for "lm" of the
@@ -248,11 +267,13 @@ class FitOptions(_Options):
     contact_point: str | None = None
     force_offset: bool = False
     n_starts: int = DEFAULT_STARTS
+    screen: int | None = None
     max_samples: int | None = None
     indentation_range: tuple[float, float] | None = None
     segments: tuple[str, ...] | None = None
     cells: int = 32
     max_steps: int = DEFAULT_MAX_STEPS
+    explore_steps: int | None = None
     optimiser: str = "lm"
     rtol: float = 1e-8
     seed: int = 0
@@ -268,8 +289,16 @@ class FitOptions(_Options):
         put("cells", _integer("cells", self.cells, 2))
         put("n_starts", _integer("n_starts", DEFAULT_STARTS if self.n_starts is None
                                  else self.n_starts, 1))
+        put("screen", _integer("screen", DEFAULT_SCREEN if self.screen is None
+                               else self.screen, 0))
+        if 0 < self.screen < self.n_starts:
+            raise ValueError(f"screen must be 0 or an integer >= n_starts ({self.n_starts}); "
+                             f"got {self.screen}")
         put("max_steps", _integer("max_steps", DEFAULT_MAX_STEPS if self.max_steps is None
                                   else self.max_steps, 1))
+        put("explore_steps", _integer("explore_steps", DEFAULT_EXPLORE_STEPS
+                                      if self.explore_steps is None else self.explore_steps,
+                                      1))
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {OPTIMISERS}; got {self.optimiser!r}")
         if isinstance(self.rtol, bool) or not (isinstance(self.rtol, int | float)
@@ -363,7 +392,7 @@ class BatchOptions(_Options):
 
     **Fields:**
 
-    - `chunk`: curves per compiled call, an integer >= 1 (default `None`: 8 on a CPU,
+    - `chunk`: curves per compiled call, an integer >= 1 (default `None`: 64 on a CPU,
       4,096 on an accelerator; :meth:`chunk_for`); every chunk has one shape (the last one
       padded), so one compilation serves all.
     - `workers`: lanes of the pool of starts per device, an integer >= 1 (default `None`:
@@ -373,7 +402,10 @@ class BatchOptions(_Options):
 
     Why the defaults differ by platform: a step of the pool costs a CPU core time in
     proportion to its lanes, and a lane idles once its start has converged, so a CPU runs
-    a few lanes that refill from the queue; an accelerator costs about the same per step
+    a few lanes that refill from the queue, and a chunk holds many times more starts than
+    lanes, so that the pool's tail (a few long runs after the queue is empty, the other
+    lanes idle) is a small part of each call (64 curves a chunk ran a map 2–3 times faster
+    than 8 on 2 cores, the same steps and optima); an accelerator costs about the same per step
     for one lane or $10^5$ (the step's kernels are launch-bound below that), so every start
     of a large chunk gets its own lane and the chunk's problems share every step
     (measured: ``benchmarks/results/fit_each.md``).
@@ -404,7 +436,7 @@ class BatchOptions(_Options):
         return jax.default_backend() != "cpu"
 
     def chunk_for(self, problems: int, *, problem_bytes: int | None = None) -> int:
-        """Problems per compiled call for `problems` problems: `chunk`, or 8 on a CPU and
+        """Problems per compiled call for `problems` problems: `chunk`, or 64 on a CPU and
         4,096 on an accelerator, fewer where `problem_bytes` (an upper estimate of one
         problem's device memory during the search, all its starts) times the chunk would
         pass half of the device's memory; never more than `problems`."""
@@ -438,7 +470,7 @@ def padded_indices(n: int, size: int) -> np.ndarray:
 
 
 #: The platform defaults of :class:`BatchOptions` (see its docstring).
-_CPU_CHUNK, _CPU_LANES, _CPU_LANES_PER_PROBLEM, _ACCELERATOR_CHUNK = 8, 64, 8, 4096
+_CPU_CHUNK, _CPU_LANES, _CPU_LANES_PER_PROBLEM, _ACCELERATOR_CHUNK = 64, 64, 8, 4096
 
 #: Device memory of the search per start and residual [bytes], an upper estimate: measured
 #: peaks on one H100 were ~320 (relaxed model, 65,536 starts of 60 samples: 1.16 GiB) and

@@ -72,7 +72,9 @@ class RheologyKind:
       times the curve resolves and started inside them: :func:`fitting._start.initial_guess`).
     - `build`: (natural parameters, arms) → a jaxcontact rheology.
     - `from_moduli`: (relaxed modulus, glass modulus, relaxation times, arm shares, arms) →
-      `{name: value}`, the parameters of a material with these moduli (the starts of a fit).
+      `{name: value}`, the parameters of a material with these moduli (the starts of a fit);
+      elementwise: the moduli may be arrays of shape `(n,)` and the times and shares
+      `(arms, n)` (`n` materials at once, :func:`fitting._start.search_points`).
     - `derived`: arms → `(rows, fn)`: the derived quantities reported with a fit, rows
       `(name, unit, definition)`, and `fn` of the natural parameters of the rheology (the
       vector's first :func:`n_material` entries and beyond) returning their values (JAX,
@@ -109,7 +111,7 @@ class RheologyKind:
 def _standard_moduli(g_inf, g_glass, taus, weights, arms):
     g0 = g_glass
     g1 = g0 * g_inf / (g0 - g_inf)
-    return {"G0": g0, "G1": g1, "eta1": float(taus[0]) * (g0 + g1)}
+    return {"G0": g0, "G1": g1, "eta1": taus[0] * (g0 + g1)}
 
 
 def _standard_relaxation(p, arms):
@@ -133,8 +135,8 @@ def _standard_derived(arms):
 def _prony_moduli(g_inf, g_glass, taus, weights, arms):
     out = {"G_inf": g_inf}
     for k in range(arms):
-        out[f"G_{k + 1}"] = (g_glass - g_inf) * float(weights[k])
-        out[f"tau_{k + 1}"] = float(taus[k])
+        out[f"G_{k + 1}"] = (g_glass - g_inf) * weights[k]
+        out[f"tau_{k + 1}"] = taus[k]
     return out
 
 

@@ -88,6 +88,7 @@ from ._parameters import free_to_internal, internal_to_free
 from ._spec import ModelSpec, n_material, parameter_info, rheology_kind, rheology_name
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
+           "search_points",
            "nested_starts", "local_starts", "local_starts_batch", "LocalRounds",
            "latin_hypercube",
            "to_prony", "from_physical"]
@@ -193,7 +194,9 @@ def from_physical(spec: ModelSpec, g_inf: float, g_glass: float, taus, weights,
                   work: float, delta: float = 0.0, f0: float = 0.0) -> dict[str, float]:
     """Natural parameters of `spec` from relaxed and glass moduli, relaxation times and the
     share of each arm in $G_g - G_\\infty$ (`weights`, summing to 1)."""
-    g_glass = max(g_glass, 1.0001 * g_inf)
+    g_glass = np.maximum(g_glass, 1.0001 * g_inf)
+    if np.ndim(g_glass) == 0:
+        g_glass = float(g_glass)
     out = rheology_kind(spec).from_moduli(g_inf, g_glass, taus, weights, spec.arms)
     out["work_of_adhesion"] = work
     if spec.contact_offset:
@@ -369,37 +372,53 @@ def local_starts_batch(params, z_end: np.ndarray, chi2: np.ndarray, n: int, *,
     return out
 
 
-def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
-                  ) -> list[dict[str, float]]:
-    """`n` starts of the global search (natural units; see the module docstring)."""
-    if n <= 0:
-        return []
+#: Up to this many points, the search's Latin hypercube is the best of 20 designs by the
+#: smallest distance between points; beyond, a single design.
+MAXIMIN_POINTS = 256
+
+
+def search_points(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
+                  ) -> dict[str, np.ndarray]:
+    """`n` points of the global search's Latin hypercube (see the module docstring), as
+    arrays: `{name: values}` in natural units, each of shape `(n,)` (all at once: a
+    screened search draws a thousand a curve, :func:`fitting._optimise.identify`)."""
     arms = spec.arms
     dim = 3 + arms + (arms - 1 if arms > 1 else 0) + 2
-    u = latin_hypercube(n, dim, seed=seed)
+    # the best of 20 designs for a few starts; one design for a screen (the selection
+    # compares all pairs of points of every design: 20 n^2 distances)
+    u = (latin_hypercube(n, dim, seed=seed, designs=20 if n <= MAXIMIN_POINTS else 1)
+         if n > 0 else np.zeros((0, dim)))
 
     def logu(x, lo, hi):
-        return float(np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x))
+        return np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x)
 
-    out = []
-    tau_hi = s.tau_resolved
-    for row in u:
-        g_inf = logu(row[0], 1e-2 * s.g_relaxed, 1e2 * s.g_relaxed)
-        ratio = logu(row[1], 1.02, 100.0)
-        work = logu(row[2], s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)
-        taus = np.sort([logu(x, s.tau_min, tau_hi) for x in row[3:3 + arms]])
-        if arms > 1:
-            # arm shares from the remaining coordinates (sorted-uniform spacings)
-            cuts = np.sort(row[3 + arms:3 + 2 * arms - 1])
-            weights = np.diff(np.r_[0.0, cuts, 1.0])
-            weights = np.maximum(weights, 1e-3)
-            weights = weights / weights.sum()
-        else:
-            weights = np.ones(1)
-        delta = (row[-2] - 0.5) * 0.5 * s.depth
-        f0 = (row[-1] - 0.5) * 0.1 * s.force_range
-        out.append(from_physical(spec, g_inf, g_inf * ratio, taus, weights, work, delta, f0))
-    return out
+    g_inf = logu(u[:, 0], 1e-2 * s.g_relaxed, 1e2 * s.g_relaxed)
+    ratio = logu(u[:, 1], 1.02, 100.0)
+    work = logu(u[:, 2], s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)
+    taus = np.sort(logu(u[:, 3:3 + arms], s.tau_min, s.tau_resolved), axis=1).T
+    if arms > 1:
+        # arm shares from the remaining coordinates (sorted-uniform spacings)
+        cuts = np.sort(u[:, 3 + arms:3 + 2 * arms - 1], axis=1)
+        weights = np.diff(np.concatenate([np.zeros((len(u), 1)), cuts, np.ones((len(u), 1))],
+                                         axis=1), axis=1)
+        weights = np.maximum(weights, 1e-3)
+        weights = (weights / weights.sum(axis=1, keepdims=True)).T
+    else:
+        weights = np.ones((max(arms, 1), len(u)))
+    delta = (u[:, -2] - 0.5) * 0.5 * s.depth
+    f0 = (u[:, -1] - 0.5) * 0.1 * s.force_range
+    out = from_physical(spec, g_inf, g_inf * ratio, taus, weights, work, delta, f0)
+    return {k: np.broadcast_to(np.asarray(v, dtype=float), (len(u),)) for k, v in out.items()}
+
+
+def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
+                  ) -> list[dict[str, float]]:
+    """`n` starts of the global search (natural units; see the module docstring): the rows
+    of :func:`search_points`."""
+    if n <= 0:
+        return []
+    points = search_points(spec, s, n, seed=seed)
+    return [{k: float(v[i]) for k, v in points.items()} for i in range(n)]
 
 
 def to_prony(spec: ModelSpec, p: Mapping[str, float]) -> tuple[float, list, list, float]:

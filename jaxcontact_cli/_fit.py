@@ -188,7 +188,7 @@ def add_fit_arguments(parser):
                        help="one fit to all curves with shared parameters (default for "
                             "several single-curve files: e.g. different speeds)")
     parser.add_argument("--chunk", type=int, default=None, metavar="N",
-                        help="with --each: curves per compiled call (default 8 on a CPU, "
+                        help="with --each: curves per compiled call (default 64 on a CPU, "
                              "4096 on a GPU)")
     add_process_arguments(parser)  # with --each: the curves shared by several processes
     parser.add_argument("--posterior", action="store_true",

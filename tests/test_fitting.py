@@ -11,6 +11,7 @@ import types
 import warnings
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -770,3 +771,37 @@ def test_tabor_parameter_reported_with_its_error_and_flagged_when_small(noisy_fi
     p0[k] = 0.0
     assert fitting._quality.tabor_entry(res.spec, p0, res.covariance, res.status, R,
                                         res.names) is None
+
+
+def test_screened_starts_are_the_lowest_chi2_points_of_the_screen():
+    # `screen`: the random starts are the screened points of lowest chi2, each chi2 here
+    # evaluated on its own through the public residuals (a second route: the screen
+    # evaluates a chunk of problems at once, in batches of points); the first start stays
+    # the data-based guess; a screened fit ends at the truth
+    from fitting import _optimise
+
+    curves = _curves(noise=0.01)
+    opts = fitting.FitOptions(radius=R, n_starts=STARTS, screen=24, contact_point="none")
+    pb = _optimise._problem(curves, opts, rheology="standard", contact_point="none",
+                            previous=None)
+    assert pb.pool.shape == (24, len(pb.param.free))
+    got = _optimise._screened([pb, pb], opts)
+    one = jax.jit(lambda z: jnp.sum(residuals(pb.param.natural(z), pb.data, pb.spec) ** 2))
+    chi2 = np.array([float(one(z)) for z in pb.pool])
+    want = pb.pool[np.argsort(chi2)[:STARTS - 1]]
+    for g in got:
+        np.testing.assert_array_equal(g.zs[0], pb.zs[0])
+        np.testing.assert_allclose(g.zs[1:STARTS], want, rtol=0, atol=0)
+    res = _fit(curves, screen=24, contact_point="none")
+    assert max(_errors(res).values()) < 0.05
+
+
+def test_screen_and_explore_options_are_checked():
+    with pytest.raises(ValueError, match=r"screen must be 0 or an integer >= n_starts \(4\)"):
+        fitting.FitOptions(radius=R, n_starts=4, screen=3)
+    with pytest.raises(ValueError, match="screen must be an integer >= 0"):
+        fitting.FitOptions(radius=R, screen=-1)
+    with pytest.raises(ValueError, match="explore_steps must be an integer >= 1"):
+        fitting.FitOptions(radius=R, explore_steps=0)
+    o = fitting.FitOptions(radius=R, n_starts=4, screen=4, explore_steps=None)
+    assert o.screen == 4 and o.explore_steps == fitting.DEFAULT_EXPLORE_STEPS

@@ -137,7 +137,7 @@ def test_schedule_by_platform():
     cpu = fitting.BatchOptions(devices=jax.devices("cpu")[:1])
     gpu = fitting.BatchOptions(devices=[Gpu()])
     assert not cpu.accelerated and gpu.accelerated
-    assert [cpu.chunk_for(n) for n in (1, 5, 100)] == [1, 5, 8]
+    assert [cpu.chunk_for(n) for n in (1, 5, 100)] == [1, 5, 64]
     assert [gpu.chunk_for(n) for n in (1, 300, 20_000)] == [1, 300, 4096]
     assert [cpu.lanes(p, 16) for p in (1, 4, 8, 100)] == [8, 32, 64, 64]
     assert cpu.lanes(1, 4) == 4  # never more lanes than starts
@@ -155,7 +155,7 @@ def test_schedule_by_platform():
     small = fitting.BatchOptions(devices=[SmallGpu()])
     assert small.chunk_for(20_000, problem_bytes=per) == (8 * 2**30) // per == 873
     assert small.chunk_for(20_000, problem_bytes=per // 100) == 4096
-    assert cpu.chunk_for(100, problem_bytes=per * 10**6) == 8
+    assert cpu.chunk_for(100, problem_bytes=per * 10**6) == 64
     assert fitting.BatchOptions(workers=5, devices=[Gpu()]).lanes(100, 16) == 5
 
 

@@ -85,7 +85,8 @@ def test_local_rounds_skip_problems_whose_rounds_are_done():
     first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
     assert not np.any(first[0].converged) and np.all(first[1].converged)
     out = _optimise._local_search([param, param], first, run, n=n, local_rounds=4, seed=0,
-                                  max_steps=200)
+                                  max_steps=200, explore_steps=200,
+                                  limits=[np.full(n, 2), np.full(n, 200)])
     # the second problem: widths 1, 2.5, 6.25 without a decrease, then done
     assert [c[1] for c in calls[1:]] == [[200] * n] * 3 + [[0] * n]
     assert calls[4][0] == [200] * n
@@ -95,6 +96,49 @@ def test_local_rounds_skip_problems_whose_rounds_are_done():
         assert o.result[best] == RESULTS.successful
         assert o.chi2[best] == pytest.approx(1.0, abs=1e-12)
         np.testing.assert_allclose(o.z[best], [1.0, 1.0], atol=1e-6)
+
+
+def test_exploring_starts_and_the_best_continued():
+    # with explore_steps, a round's starts but the first (the best so far, continued) get
+    # the exploring limit; a best end point stopped at an exploring limit is continued with
+    # max_steps after the rounds, and reaches the closed-form minimum (1, 1); a problem
+    # whose best converged is not run again (limit 0)
+    info = [("a", "1", "modulus"), ("b", "1", "modulus")]
+    param = make_parameterisation(info, {"a": 1.0, "b": 1.0},
+                                  bounds={"a": (1e-3, 1e3), "b": (1e-3, 1e3)})
+    lm = LevenbergMarquardt(max_steps=200)
+    n = 4
+    calls = []
+
+    def run(starts, limits):
+        calls.append([np.asarray(lim).tolist() for lim in limits])
+        return [_pool(lm, zs, limits=lim, fn=rosenbrock_floor)
+                for zs, lim in zip(starts, limits, strict=True)]
+
+    z0 = np.array([[-1.2, 1.0], [-1.0, 2.0], [2.0, 2.0], [0.0, -1.0]])
+    first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
+    out = _optimise._local_search([param, param], first, run, n=n, local_rounds=1, seed=0,
+                                  max_steps=200, explore_steps=2,
+                                  limits=[np.full(n, 2), np.full(n, 200)])
+    assert calls[1] == [[200, 2, 2, 2]] * 2
+    # problem 0's best start of the round converged from the continued best; problem 1 was
+    # at its minimum: the continuation only where needed
+    assert len(calls) == 2 or calls[2][1] == [0] * n
+    for o in out:
+        best = int(np.argmin(o.chi2))
+        assert o.result[best] == RESULTS.successful
+        np.testing.assert_allclose(o.z[best], [1.0, 1.0], atol=1e-6)
+    # no rounds: the global search's best, stopped at the exploring limit 2, is continued
+    calls.clear()
+    first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
+    out = _optimise._local_search([param, param], first, run, n=n, local_rounds=0, seed=0,
+                                  max_steps=200, explore_steps=2,
+                                  limits=[np.full(n, 2), np.full(n, 200)])
+    assert calls[1] == [[200, 0, 0, 0], [0] * n]
+    assert len(out[0].chi2) == n + 1 and len(out[1].chi2) == n
+    best = int(np.argmin(out[0].chi2))
+    assert best == n and out[0].result[best] == RESULTS.successful
+    np.testing.assert_allclose(out[0].z[best], [1.0, 1.0], atol=1e-6)
 
 
 @pytest.mark.parametrize("limit", [0, 1])

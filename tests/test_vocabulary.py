@@ -56,7 +56,7 @@ def zener(monkeypatch):
                                  _spec._info("tau_1")],
         build=lambda p, arms: jc.PronySeries(p[0], p[1:2], p[2:3]),
         from_moduli=lambda g_inf, g_glass, taus, weights, arms: {
-            "G_inf": g_inf, "G_1": g_glass - g_inf, "tau_1": float(taus[0])},
+            "G_inf": g_inf, "G_1": g_glass - g_inf, "tau_1": taus[0]},
         derived=lambda arms: ([("G_0", "Pa", "G_inf + G_1")], lambda q: jnp.stack([q[0] + q[1]])),
         help="G_inf, G_1 [Pa], tau_1 [s]",
         relaxation=lambda p, arms: (p["G_inf"], [p["G_1"]], [p["tau_1"]]))

@@ -171,6 +171,13 @@ def add_fit_arguments(parser):
     parser.add_argument("--starts", type=int, default=None, metavar="N",
                         help="number of starts of the global search (default: the library's, "
                              "see fitting.fit)")
+    parser.add_argument("--screen", type=int, default=None, metavar="N",
+                        help="evaluate chi2 at N points of the search's Latin hypercube and "
+                             "start from the lowest (N >= --starts; default 0: not screened); "
+                             "with fewer --starts a cheaper search, see fitting.FitOptions")
+    parser.add_argument("--explore-steps", type=int, default=None, metavar="N",
+                        help="iterations of an exploring start (all but the continued best; "
+                             "default: --max-steps); a best start stopped there is continued")
     parser.add_argument("--max-steps", type=int, default=None, metavar="N",
                         help="iterations per start of the search (default: the library's, "
                              "200); a fit that stops at this limit is written with "
@@ -308,6 +315,14 @@ def _check(args):
         raise UsageError(f"argument --chunk: must be an integer >= 1; got {args.chunk}")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
+    if args.screen is not None and args.screen < 0:
+        raise UsageError(f"argument --screen: must be an integer >= 0; got {args.screen}")
+    if args.screen and args.starts is not None and args.screen < args.starts:
+        raise UsageError(f"argument --screen: must be 0 or an integer >= --starts "
+                         f"({args.starts}); got {args.screen}")
+    if args.explore_steps is not None and args.explore_steps < 1:
+        raise UsageError(f"argument --explore-steps: must be an integer >= 1; got "
+                         f"{args.explore_steps}")
     if args.max_steps is not None and args.max_steps < 1:
         raise UsageError(f"argument --max-steps: must be an integer >= 1; got {args.max_steps}")
     if args.max_samples is not None and args.max_samples < 4:
@@ -390,6 +405,10 @@ def run(args) -> int:
         options["n_starts"] = args.starts
     if args.max_steps is not None:
         options["max_steps"] = args.max_steps
+    if args.screen is not None:
+        options["screen"] = args.screen
+    if args.explore_steps is not None:
+        options["explore_steps"] = args.explore_steps
     if args.contact_point is not None:
         options["contact_point"] = args.contact_point  # fitting.fit's vocabulary
     if radius is not None:

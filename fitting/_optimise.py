@@ -866,6 +866,10 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
         fitted_force=np.asarray(fitted_force), in_contact=in_contact,
         parameterisation=param, optimiser=options.optimiser, start_steps=steps_all,
         warnings=msgs, timings=timings,
+        search={"n_starts": options.n_starts, "screen": options.screen,
+                "local_rounds": options.local_rounds, "max_steps": options.max_steps,
+                "explore_steps": min(options.explore_steps, options.max_steps),
+                "optimiser": options.optimiser, "rtol": options.rtol, "seed": options.seed},
     )
     # quality per segment, flags, convergence, derived quantities
     flagged = assess(result, max_steps=options.max_steps, evaluated=pre["evaluated"])

@@ -18,7 +18,9 @@ samples each kept sample stands for, ``r_squared_weighting`` says so —
 reduced $\chi^2$ and the largest residual in σ); the model (``model``, ``rheology``,
 ``radius_m``, ``profile`` and ``profile_parameters``, ``loading``, ``contact_point`` and
 ``force_offset`` choices, ``model_selection`` for ``rheology="auto"``); the search
-(``start_losses``); ``correlation``; ``warnings``; ``timings_s``; ``inputs`` (each curve's
+(``start_losses``; ``search``: its settings, ``n_starts``, ``screen``, ``local_rounds``,
+``max_steps``, ``explore_steps``, ``optimiser``, ``rtol``, ``seed``); ``correlation``;
+``warnings``; ``timings_s``; ``inputs`` (each curve's
 source, segments, samples, duration, spring constant, and its detected contact point and
 baseline when a loader found them).
 
@@ -103,7 +105,7 @@ def result_table(result) -> dict:
         r_squared_unweighted=_num(result.r_squared_unweighted),
         r_squared_contact=_num(result.r_squared_contact),
         segments=[q.as_dict() for q in result.segments],
-        convergence=dict(result.convergence),
+        convergence=dict(result.convergence), search=dict(result.search),
         reduced_chi2=_num(result.reduced_chi2), chi2=_num(result.chi2),
         aic=_num(result.aic), bic=_num(result.bic),
         n_data=int(result.n_data), n_free=int(result.n_free),
@@ -327,6 +329,7 @@ def map_settings(result) -> dict:
             "force_offset": bool(first.spec.force_offset),
             "loading": "compliant" if first.spec.compliant else "displacement",
             "max_samples_per_curve": int(np.asarray(first.data.ts).shape[1]),
+            "search": dict(first.search),
             "r_squared_weighting": _R2_WEIGHTING,
             "stderr_basis": "Gauss-Newton standard error scaled by sqrt(reduced chi2) "
                             "(lmfit's scale_covar); with the model inadequate (flag "

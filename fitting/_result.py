@@ -46,7 +46,9 @@ class FitResult:
 
     **Search:** `start_losses` (final $\\chi^2$ of every start of the global search),
     `start_steps` (iterations of every start), `optimiser`, `model_selection` (the
-    candidates of ``rheology="auto"``, else empty).
+    candidates of ``rheology="auto"``, else empty), `search` (the search's settings:
+    `n_starts`, `screen`, `local_rounds`, `max_steps`, `explore_steps`, `optimiser`, `rtol`,
+    `seed`; with the data they give the same optimum again).
 
     **Data and model:** `spec`, `data` (the `CurveBatch` fitted), `curves`, `profile`,
     `radius` (of a parabola or sphere), `model_solution` (batched `ContactSolution` at the optimum),
@@ -109,6 +111,7 @@ class FitResult:
     convergence: dict = field(default_factory=dict)
     stderr_scale: float = float("nan")
     derived: list = field(default_factory=list)
+    search: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, float]:
         """Parameter values by short name."""

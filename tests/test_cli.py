@@ -487,6 +487,8 @@ def test_fit_that_does_not_converge_writes_its_best_point(tmp_path, capsys):
     assert "step limit (max_steps 1)" in conv["reason"] and conv["max_steps"] == 1
     assert any("max_steps=2" in a for a in conv["advice"])
     assert "not_converged" in table["flags"] and table["G0_Pa"]["value"] > 0
+    assert table["search"]["n_starts"] == 2 and table["search"]["max_steps"] == 1
+    assert table["search"]["explore_steps"] == 1  # at most max_steps
     # a map keeps such curves as flagged, not failed
     out = tmp_path / "map"
     rc = main(["fit", *files[:2], "--each", "--radius", "10e-6", "--model", "relaxed",

@@ -174,11 +174,17 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
         assert float(rows[k]["tabor_mu_1"]) > 5 and float(rows[k]["tabor_mu_1_stderr"]) > 0
     table = json.loads(paths["json"].read_text())
     assert table["settings"]["radius_m"] == R and table["settings"]["model"] == "relaxed"
+    # the search's settings, as given (n_starts) and the defaults otherwise
+    assert table["settings"]["search"] == {
+        "n_starts": STARTS, "screen": fitting.DEFAULT_SCREEN,
+        "local_rounds": fitting.DEFAULT_LOCAL_ROUNDS, "max_steps": 200,
+        "explore_steps": 200, "optimiser": "lm", "rtol": 1e-8, "seed": 0}
     assert table["ok"] == 3 and table["flagged"] == 0
     import xarray as xr
 
     ds = xr.load_dataset(paths["netcdf"], engine="h5netcdf")
     assert ds.attrs["radius_m"] == R and ds.attrs["contact_point"] == "fixed"
+    assert json.loads(ds.attrs["search"])["n_starts"] == STARTS
     assert list(ds["status"].values) == [r["status"] for r in rows]
     assert ds["E_inf_Pa"].values[0] == pytest.approx(float(rows[0]["E_inf_Pa"]))
     # the console: a status beside every median, the warnings once by kind

@@ -3,7 +3,7 @@ tables that need a GPU (issues: identification at scale, sweeps at device speed)
 
     PYTHONPATH=. python benchmarks/device_check.py [--fit-curves 128,4096,16384]
         [--baseline-workers 64] [--history-fit 256] [--sweep-max 10000000]
-        [--history 32768,131072] [--repeats 2]
+        [--history 32768,131072] [--repeats 2] [--search JSON ...]
 
 Prints markdown rows (warm medians of `--repeats` calls after one cold call):
 `fitting.fit_each` on the synthetic relaxed-start map of `bench_fit_each.py` with the
@@ -18,6 +18,7 @@ the CPU too (smaller sizes), which is how it is smoke-tested.
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import statistics
 import sys
@@ -52,11 +53,12 @@ def _peak_gib():
     return stats.get("peak_bytes_in_use", float("nan")) / 2**30
 
 
-def fit_rows(curves, sizes, baseline_workers, model, repeats):
+def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=()):
     """`fitting.fit_each` on the first `n` of `curves` for each `n` of `sizes` with the
     platform's default schedule (`BatchOptions()`: chunk and lanes); on the first size
-    also the CPU schedule (`chunk=n, workers=baseline_workers`) for a paired baseline and
-    the χ² of every curve compared between the two."""
+    also the CPU schedule (`chunk=n, workers=baseline_workers`) for a paired baseline, and
+    each of `searches` (dicts of search options of `fitting.FitOptions`, e.g. ``{"screen":
+    1024, "n_starts": 8}``), with the χ² of every curve compared to the default's."""
     kw = dict(radius=R, progress=False, model=model)
     print(f"\n{model} model, {curves[0].time.size} samples a curve, default search\n\n"
           "| schedule | curves | chunk | lanes | cold [s] | warm [s] | curves/s | prepare / "
@@ -64,18 +66,21 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats):
           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |", flush=True)
     first = {}
     for i, n in enumerate(sizes):
-        runs = [("platform default", {})]
+        runs = [("platform default", {}, {})]
         if i == 0 and baseline_workers:
             runs.append((f"CPU's ({baseline_workers} lanes)",
-                         dict(chunk=n, workers=baseline_workers)))
-        for label, extra in runs:
+                         dict(chunk=n, workers=baseline_workers), {}))
+        if i == 0:
+            runs += [(f"search {json.dumps(s)}", {}, dict(s)) for s in searches]
+        for label, extra, search in runs:
             batch = fitting.BatchOptions(**extra)
             size = batch.chunk_for(n)
-            lanes = batch.lanes(size, fitting.DEFAULT_STARTS)
+            lanes = batch.lanes(size, search.get("n_starts", fitting.DEFAULT_STARTS))
             # sizes whose chunk was compiled by an earlier row: one call only
-            seen = any(batch.chunk_for(m) == size for m in sizes[:i]) and not extra
-            cold, warm, res = timed(lambda b=batch, n=n: fitting.fit_each(
-                curves[:n], batch=b, **kw), 0 if seen else repeats)
+            seen = (any(batch.chunk_for(m) == size for m in sizes[:i]) and not extra
+                    and not search)
+            cold, warm, res = timed(lambda b=batch, n=n, s=search: fitting.fit_each(
+                curves[:n], batch=b, **kw, **s), 0 if seen else repeats)
             t = res.timings
             steps = np.mean([np.sum(r.start_steps) for r in res.results if r is not None])
             print(f"| {label} | {n:,} | {size} | {lanes:,} | "
@@ -86,13 +91,13 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats):
             if i == 0:
                 first[label] = np.array([r.chi2 if r is not None else np.nan
                                          for r in res.results])
-    if len(first) == 2:
-        new, old = first.values()
-        lower = int(np.sum(new <= old * (1 + 1e-9)))
-        print(f"\nχ² of the platform default against the CPU schedule on the same "
-              f"{old.size} curves: no higher (+1e-9 relative) on {lower}/{old.size}; "
-              f"largest relative difference {np.nanmax(np.abs(new / old - 1)):.2g}",
-              flush=True)
+    base = first.pop("platform default", None)
+    for label, other in first.items():
+        lower = int(np.sum(base <= other * (1 + 1e-9)))
+        print(f"\nχ² of the platform default against {label} on the same "
+              f"{other.size} curves: no higher (+1e-9 relative) on {lower}/{other.size}; "
+              f"{label} higher by at most {np.nanmax(other / base - 1):.2g} (relative), "
+              f"lower by at most {np.nanmax(1 - other / base):.2g}", flush=True)
 
 
 def main(argv=None):
@@ -109,6 +114,9 @@ def main(argv=None):
     ap.add_argument("--history", default="32768,131072",
                     help="curves of the full-history sweeps, comma-separated")
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--search", action="append", default=[], metavar="JSON",
+                    help="search options run on the first relaxed map size beside the "
+                         "default, e.g. '{\"screen\": 1024, \"n_starts\": 8}' (repeatable)")
     args = ap.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     warnings.simplefilter("ignore")
@@ -119,7 +127,7 @@ def main(argv=None):
     fit_sizes = [int(x) for x in str(args.fit_curves).split(",") if x.strip()]
     if fit_sizes:
         fit_rows(make_map(max(fit_sizes), 60), fit_sizes, args.baseline_workers, "relaxed",
-                 args.repeats)
+                 args.repeats, [json.loads(s) for s in args.search])
     hist_sizes = [int(x) for x in str(args.history_fit).split(",") if x.strip()]
     if hist_sizes:
         fit_rows(make_history_map(max(hist_sizes), 200), hist_sizes, 0, "history",

@@ -403,9 +403,10 @@ class BatchOptions(_Options):
     Why the defaults differ by platform: a step of the pool costs a CPU core time in
     proportion to its lanes, and a lane idles once its start has converged, so a CPU runs
     a few lanes that refill from the queue, and a chunk holds many times more starts than
-    lanes, so that the pool's tail (a few long runs after the queue is empty, the other
-    lanes idle) is a small part of each call (64 curves a chunk ran a map 2–3 times faster
-    than 8 on 2 cores, the same steps and optima); an accelerator costs about the same per step
+    lanes (about 8 a lane), so that the pool's tail (a few long runs after the queue is
+    empty, the other lanes idle) is a small part of each call (64 curves a chunk ran a map
+    2–3 times faster than 8 curves on 64 lanes on 2 cores, the same steps and optima; 8
+    curves on 16 lanes 1.6 times faster than on 64); an accelerator costs about the same per step
     for one lane or $10^5$ (the step's kernels are launch-bound below that), so every start
     of a large chunk gets its own lane and the chunk's problems share every step
     (measured: ``benchmarks/results/fit_each.md``).
@@ -454,12 +455,14 @@ class BatchOptions(_Options):
 
     def lanes(self, problems: int, starts: int) -> int:
         """Lanes of the pool for `problems` problems of `starts` starts each: `workers`; or
-        on a CPU 8 per problem, at most 64; on an accelerator one per start."""
+        on a CPU one per 8 starts, at least 8 and at most 64 (never more than the starts);
+        on an accelerator one per start."""
         if self.workers is not None:
             return self.workers
+        total = problems * starts
         if self.accelerated:
-            return problems * starts
-        return min(_CPU_LANES_PER_PROBLEM * problems, _CPU_LANES, problems * starts)
+            return total
+        return min(_CPU_LANES, total, max(_CPU_MIN_LANES, total // _CPU_STARTS_PER_LANE))
 
 
 def padded_indices(n: int, size: int) -> np.ndarray:
@@ -470,7 +473,8 @@ def padded_indices(n: int, size: int) -> np.ndarray:
 
 
 #: The platform defaults of :class:`BatchOptions` (see its docstring).
-_CPU_CHUNK, _CPU_LANES, _CPU_LANES_PER_PROBLEM, _ACCELERATOR_CHUNK = 64, 64, 8, 4096
+_CPU_CHUNK, _CPU_LANES, _CPU_MIN_LANES, _CPU_STARTS_PER_LANE, _ACCELERATOR_CHUNK = (
+    64, 64, 8, 8, 4096)
 
 #: Device memory of the search per start and residual [bytes], an upper estimate: measured
 #: peaks on one H100 were ~320 (relaxed model, 65,536 starts of 60 samples: 1.16 GiB) and

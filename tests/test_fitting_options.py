@@ -129,7 +129,7 @@ def test_signatures_show_the_options_with_their_defaults():
 
 
 def test_schedule_by_platform():
-    # a CPU runs few lanes that refill (8 per problem, at most 64); an accelerator gives
+    # a CPU runs few lanes that refill (one per 8 starts, 8 to 64); an accelerator gives
     # every start of a large chunk its own lane; explicit values win on both
     class Gpu:
         platform = "gpu"
@@ -139,7 +139,7 @@ def test_schedule_by_platform():
     assert not cpu.accelerated and gpu.accelerated
     assert [cpu.chunk_for(n) for n in (1, 5, 100)] == [1, 5, 64]
     assert [gpu.chunk_for(n) for n in (1, 300, 20_000)] == [1, 300, 4096]
-    assert [cpu.lanes(p, 16) for p in (1, 4, 8, 100)] == [8, 32, 64, 64]
+    assert [cpu.lanes(p, 16) for p in (1, 4, 8, 16, 100)] == [8, 8, 16, 32, 64]
     assert cpu.lanes(1, 4) == 4  # never more lanes than starts
     assert [gpu.lanes(p, 16) for p in (1, 4096)] == [16, 65_536]
     assert fitting.BatchOptions(chunk=3, workers=5, devices=[Gpu()]).chunk_for(100) == 3

@@ -417,7 +417,7 @@ def test_interrupt_during_imports_is_not_lost(tmp_path):
         env={**os.environ, "JAXCONTACT_CACHE": str(tmp_path / "cache")})
     time.sleep(0.3)
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=600)  # a hang's limit: imports on a busy machine
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     assert not out.exists()

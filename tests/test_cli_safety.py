@@ -170,7 +170,7 @@ def test_signal_after_the_output_is_complete_says_so(tmp_path, wait):
     # complete, or (a signal after the command returned) exit -15 with no message
     out = tmp_path / "o"
     proc = subprocess.run([sys.executable, "-c", _SIGNAL_AFTER_COMMIT, str(out), str(wait)],
-                          capture_output=True, text=True, timeout=120,
+                          capture_output=True, text=True, timeout=600,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 128 + signal.SIGTERM, (proc.returncode, proc.stderr)
     assert f"wrote {out}" in proc.stderr and "complete" in proc.stderr, proc.stderr

@@ -149,7 +149,10 @@ def test_gradients_elastic_relations():
     def F(a, E_, dg, R_):
         return jc.jkr_force(jc.Parabola(R=R_), a, effective_modulus=E_, work_of_adhesion=dg)
 
-    check_grads(F, (1e-5, E, DG, p_R), order=2, modes=["fwd", "rev"], eps=1e-9 * 0 + 1e-10)
+    # compiled: the same derivatives (custom rules included) as op by op, at 40 % of the
+    # CPU time (every eager operation of the second-order checks compiles on its own)
+    check_grads(jax.jit(F), (1e-5, E, DG, p_R), order=2, modes=["fwd", "rev"],
+                eps=1e-9 * 0 + 1e-10)
 
     def pulloff(E_, dg, R_):
         return jc.pull_off(jc.Parabola(R=R_), effective_modulus=E_, work_of_adhesion=dg).force

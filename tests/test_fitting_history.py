@@ -221,11 +221,15 @@ def compliant_curve():
                          segment_names=("approach", "hold", "retract"))
 
 
-def test_compliant_data_drive_the_base():
+def test_compliant_data_drive_the_base(shifted):
     """The compliant model is driven by the base position z = d + F/k (the spring's
     measured deflection added back), with the spring constant per curve (the fit itself:
-    the slow test below)."""
-    t, d, f, counts = _history(0.01, 4, n=(20, 20, 20))
+    the slow test below). Every 15th sample of the module's simulated curve: 20 per
+    segment (a new curve length would compile `simulate` once more for nothing)."""
+    t, d, f = (np.asarray(x)[::15] for x in (shifted.time, shifted.displacement,
+                                             shifted.force))
+    counts = np.bincount(np.asarray(shifted.segment)[::15])
+    assert list(counts) == [20, 20, 20]
     curve = _curve(t, d, f, counts)
     spec = fitting.make_spec("history", compliant=True, cells=CELLS)
     data = fitting.prepare_curves(curve, spec, radius=R, spring_constant=K)

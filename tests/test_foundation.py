@@ -388,7 +388,9 @@ def test_compliant_elastic_jkr_and_instability():
     preload = 4 / 3 * E * np.sqrt(R) * D0**1.5
     for k in (1e7, 100.0, 10.0, 0.1, 0.01):
         z_top, z_end = D0 + preload / k, -2 * D0 + 1.5 * f_control / k
-        ts, z = _history([0, 1, 2], [0, z_top, z_end], 3001)  # one compiled shape
+        # one compiled shape; 1001 samples leave 123-218 on the receding front (the
+        # checks are exact per sample; 3001 cost 3x the run time for the same checks)
+        ts, z = _history([0, 1, 2], [0, z_top, z_end], 1001)
         sol = _sim(_elastic(G), PARABOLA, DGAMMA, ts, z, loading=_compliant(k))
         F, dd, a = (np.asarray(x) for x in (sol.force, sol.displacement, sol.contact_radius))
         # equilibrium of the spring at every sample: k (z - d) = F (to the round-off of z - d)

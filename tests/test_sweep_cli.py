@@ -119,7 +119,7 @@ def test_two_processes_match_one(example, tmp_path):
             env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for i in range(2)
     ]
-    outs = [p.communicate(timeout=300) for p in procs]
+    outs = [p.communicate(timeout=1800) for p in procs]  # a hang's limit, not a speed
     for p, (_, err) in zip(procs, outs, strict=True):
         assert p.returncode == 0, err[-3000:]
     two = xr.load_dataset(out, engine="h5netcdf")

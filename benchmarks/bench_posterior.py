@@ -154,7 +154,8 @@ def run_synthetic(args) -> list[dict]:
             t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
-                                  warmup=args.warmup, predictive=False, warn=False)
+                                  warmup=args.warmup, predictive=False, warn=False,
+                                  target_accept=args.target_accept)
         t_sample = time.perf_counter() - t0
         rec = {"curve": i, "draws": args.draws, "chains": args.chains,
                "warmup": args.warmup, "model": args.model, "truth": p,
@@ -188,13 +189,16 @@ def run_synthetic(args) -> list[dict]:
 
 
 def run_timing(args) -> None:
-    """`--time-only K`: fit and sample the first K sets, print the device and the times
-    (the first call compiles); no records, no table (the GPU row of the table)."""
+    """`--time-only K`: fit and sample the first K sets (or `--sets`), print the device,
+    the times and the sampler's diagnostics (the first call compiles); no records, no
+    table (the GPU row of the table; the divergence study)."""
     import jax
 
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), jax "
           f"{jax.__version__}, numpyro {_numpyro()}", flush=True)
-    for i in range(args.time_only):
+    sets = ([int(x) for x in args.sets.split(",")] if args.sets
+            else list(range(args.time_only)))
+    for i in sets:
         p, data = make_set(i, args)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -203,12 +207,17 @@ def run_timing(args) -> None:
             t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
-                                  warmup=args.warmup, predictive=False, warn=False)
+                                  warmup=args.warmup, predictive=False, warn=False,
+                                  target_accept=args.target_accept)
         print(f"set {i}: sample {time.perf_counter() - t0:.2f} s ({args.chains} chains x "
               f"{args.draws} draws + {args.warmup} warm-up), divergences {post.divergences}, "
               f"max R-hat {max(r['r_hat'] for r in post.rows):.4f}, min bulk ESS "
               f"{min(r['ess_bulk'] for r in post.rows):.0f}, leapfrog steps per draw "
-              f"{post.sample_stats['n_steps'].mean():.1f}; fit {t_fit:.1f} s", flush=True)
+              f"{post.sample_stats['n_steps'].mean():.1f} (max "
+              f"{post.sample_stats['n_steps'].max()}), step sizes "
+              f"{np.round(post.sample_stats['step_size'][:, -1], 3).tolist()}, divergences "
+              f"per chain {post.sample_stats['diverging'].sum(axis=1).tolist()}; fit "
+              f"{t_fit:.1f} s", flush=True)
 
 
 def run_real(files, args) -> list[str]:
@@ -341,6 +350,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--no-table", action="store_true")
     ap.add_argument("--time-only", type=int, default=0, metavar="K")
+    ap.add_argument("--sets", default="", help="as --time-only, these sets (e.g. 17,33,48)")
+    ap.add_argument("--target-accept", type=float,
+                    default=fitting._posterior.DEFAULT_TARGET_ACCEPT)
     args = ap.parse_args(argv)
     stem = "posterior" if args.model == "relaxed" else "posterior_history"
     args.records = args.records or f"benchmarks/results/{stem}_records.jsonl"
@@ -348,7 +360,7 @@ def main(argv=None) -> int:
     if args.check_cells:
         check_cells(args)
         return 0
-    if args.time_only:
+    if args.time_only or args.sets:
         run_timing(args)
         return 0
     command = "python benchmarks/bench_posterior.py " + " ".join(sys.argv[1:] if argv is None

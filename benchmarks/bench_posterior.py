@@ -264,7 +264,9 @@ def _sets_text(args) -> str:
 
 
 def table(recs, args, real_rows, command) -> list[str]:
-    lines = ["# Posterior calibration (`fitting.sample`, NUTS)", "",
+    title = ("# Posterior calibration (`fitting.sample`, NUTS)" if args.model == "relaxed"
+             else "# Posterior calibration, full-history model (`fitting.sample`, NUTS)")
+    lines = [title, "",
              f"Measured {machine()}; numpyro {_numpyro()}. Command:", "",
              f"    {command}", "",
              f"{len(recs)} synthetic parameter sets ({_sets_text(args)}; see the script's "
@@ -369,6 +371,9 @@ def main(argv=None) -> int:
     real_rows = run_real(args.real, args) if args.real else []
     if not args.no_table and recs:
         write_table(args.out, table(recs, args, real_rows, command))
+    elif real_rows:  # no synthetic sets (--curves 0): the real curves' rows to stdout
+        print(f"Measured {machine()}; numpyro {_numpyro()}. Command:\n\n    {command}")
+        print("\n".join(real_rows))
     return 0
 
 

@@ -13,6 +13,17 @@ contains the truth (acceptance: 80-97 %), the largest R-hat and the smallest bul
 the curves (acceptance: R-hat <= 1.01, bulk ESS >= 400), divergences, and the time per
 curve of the sampler (the first curve's, compilation included, apart).
 
+`--model history`: the full-history model (`jaxcontact.simulate` on the foundation grid)
+instead, on QI-like curves without a hold: per set two approach-retract curves (approach
+from 0.3 um above the surface to 1 um at the speed, retract at the same speed to 1.3 um
+above the surface, past the pull-off), speeds `HISTORY_SPEEDS`, `--history-samples`
+samples each (half approach, half retract), generated on the default foundation grid
+(64 cells) and fitted and sampled with `--cells` cells (default 8: the forces of the
+8-cell grid differ from a 512-cell grid's by at most 7e-4 of the force range on these
+histories, 0.07 noise standard deviations; the check: `--check-cells`).
+Records go to `--records` (default `posterior_history_records.jsonl`), the table to
+`benchmarks/results/posterior_history.md`.
+
 `--real FILE ...`: also sample the posterior of the shipped real curves (`--real-model`,
 default relaxed as `jaxcontact fit`; contact point fitted, as for instrument files;
 `--real-draws` per chain) and put the posterior beside the linearised errors.
@@ -48,6 +59,9 @@ SPEEDS = (0.5e-6, 2e-6, 8e-6)
 N = 40
 NOISE = 0.01
 NAMES = ("G0", "G1", "eta1", "work_of_adhesion", "contact_offset")
+HISTORY_SPEEDS = (1e-6, 8e-6)
+PRE = 0.3e-6  # the approach starts this far above the surface [m]
+LIFT_PAST = 1.3e-6  # the retract ends this far above the surface [m]
 
 
 def truth(rng) -> dict:
@@ -72,6 +86,54 @@ def curves(p: dict, rng) -> list:
     return out
 
 
+def history_curve(p: dict, v: float, n: int, rng, cells: int | None = None):
+    """One approach-retract curve of the full-history model at speed `v` [m/s], `n`
+    samples (half approach, half retract), 1 % noise; `cells`: the foundation grid of the
+    simulation (default: the library's)."""
+    na = n // 2
+    ta = np.linspace(0.0, (PRE + D0) / v, na)
+    tr = ta[-1] + np.linspace(0.0, (D0 + LIFT_PAST) / v, n - na + 1)[1:]
+    t = np.concatenate([ta, tr])
+    d = np.interp(t, [0.0, ta[-1], tr[-1]], [-PRE, D0, -LIFT_PAST])
+    grid = jc.FoundationGrid() if cells is None else jc.FoundationGrid(cells=cells)
+    sol = jc.simulate(jc.StandardModel(p["G0"], p["G1"], p["eta1"]), jc.Parabola(R),
+                      p["work_of_adhesion"], t, d, grid=grid)
+    f = np.asarray(sol.force)
+    if rng is not None:
+        f = f + NOISE * np.ptp(f) * rng.standard_normal(n)
+    return fitting.Curve(time=t, displacement=d, force=f,
+                         segment=np.repeat([0, 1], [na, n - na]),
+                         segment_names=("approach", "retract"))
+
+
+def make_set(i: int, args):
+    """The true parameters and the curves of set `i` (seeded by `i`)."""
+    rng = np.random.default_rng(1000 + i)
+    p = truth(rng)
+    if args.model == "history":
+        return p, [history_curve(p, v, args.history_samples, rng) for v in HISTORY_SPEEDS]
+    return p, curves(p, rng)
+
+
+def fit_set(data, args):
+    if args.model == "history":
+        return fitting.fit(data, radius=R, model="history", cells=args.cells,
+                           contact_point="fit", progress=False)
+    return fitting.fit(data, radius=R, contact_point="fit", progress=False)
+
+
+def check_cells(args) -> None:
+    """`--check-cells`: the largest force difference of the history curves on
+    `--cells` cells against 512 cells, relative to the force range, for the first sets."""
+    for i in range(3):
+        p, _ = make_set(i, args)
+        for v in HISTORY_SPEEDS:
+            ref = history_curve(p, v, args.history_samples, None, cells=512).force
+            f = history_curve(p, v, args.history_samples, None, cells=args.cells).force
+            print(f"set {i} speed {v * 1e6:g} um/s: max |F({args.cells} cells) - F(512)| / "
+                  f"force range = {np.max(np.abs(f - ref)) / np.ptp(ref):.2e}", flush=True)
+
+
 def run_synthetic(args) -> list[dict]:
     path = pathlib.Path(args.records)
     done = {}
@@ -82,22 +144,24 @@ def run_synthetic(args) -> list[dict]:
                                                                    args.warmup):
                 done[rec["curve"]] = rec
     for i in range(args.curves):
-        rng = np.random.default_rng(1000 + i)
-        p = truth(rng)
         if i in done:
             continue
-        data = curves(p, rng)
+        p, data = make_set(i, args)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t0 = time.perf_counter()
-            res = fitting.fit(data, radius=R, contact_point="fit", progress=False)
+            res = fit_set(data, args)
             t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
-                                  warmup=args.warmup, predictive=False, warn=False)
+                                  warmup=args.warmup, predictive=False, warn=False,
+                                  target_accept=args.target_accept)
         t_sample = time.perf_counter() - t0
         rec = {"curve": i, "draws": args.draws, "chains": args.chains,
-               "warmup": args.warmup, "truth": p,
+               "warmup": args.warmup, "model": args.model, "truth": p,
+               "settings": {k: post.settings[k] for k in ("target_accept", "max_tree_depth")},
+               "max_steps_per_draw": int(post.sample_stats["n_steps"].max()),
+               "mean_steps_per_draw": float(post.sample_stats["n_steps"].mean()),
                "time_fit": t_fit, "time_sample": t_sample,
                "time_mcmc": post.timings["mcmc"],
                "divergences": post.divergences, "params": {}}
@@ -125,26 +189,35 @@ def run_synthetic(args) -> list[dict]:
 
 
 def run_timing(args) -> None:
-    """`--time-only K`: fit and sample the first K sets, print the device and the times
-    (the first call compiles); no records, no table (the GPU row of the table)."""
+    """`--time-only K`: fit and sample the first K sets (or `--sets`), print the device,
+    the times and the sampler's diagnostics (the first call compiles); no records, no
+    table (the GPU row of the table; the divergence study)."""
     import jax
 
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), jax "
           f"{jax.__version__}, numpyro {_numpyro()}", flush=True)
-    for i in range(args.time_only):
-        rng = np.random.default_rng(1000 + i)
-        p = truth(rng)
-        data = curves(p, rng)
+    sets = ([int(x) for x in args.sets.split(",")] if args.sets
+            else list(range(args.time_only)))
+    for i in sets:
+        p, data = make_set(i, args)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = fitting.fit(data, radius=R, contact_point="fit", progress=False)
+            t0 = time.perf_counter()
+            res = fit_set(data, args)
+            t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
-                                  warmup=args.warmup, predictive=False, warn=False)
+                                  warmup=args.warmup, predictive=False, warn=False,
+                                  target_accept=args.target_accept)
         print(f"set {i}: sample {time.perf_counter() - t0:.2f} s ({args.chains} chains x "
               f"{args.draws} draws + {args.warmup} warm-up), divergences {post.divergences}, "
               f"max R-hat {max(r['r_hat'] for r in post.rows):.4f}, min bulk ESS "
-              f"{min(r['ess_bulk'] for r in post.rows):.0f}", flush=True)
+              f"{min(r['ess_bulk'] for r in post.rows):.0f}, leapfrog steps per draw "
+              f"{post.sample_stats['n_steps'].mean():.1f} (max "
+              f"{post.sample_stats['n_steps'].max()}), step sizes "
+              f"{np.round(post.sample_stats['step_size'][:, -1], 3).tolist()}, divergences "
+              f"per chain {post.sample_stats['diverging'].sum(axis=1).tolist()}; fit "
+              f"{t_fit:.1f} s", flush=True)
 
 
 def run_real(files, args) -> list[str]:
@@ -179,13 +252,25 @@ def run_real(files, args) -> list[str]:
     return rows
 
 
+def _sets_text(args) -> str:
+    if args.model == "history":
+        return (f"full-history model on {args.cells} foundation cells, standard rheology, "
+                f"contact offset fitted; {len(HISTORY_SPEEDS)} approach-retract curves "
+                f"(speeds {', '.join(f'{v * 1e6:g}' for v in HISTORY_SPEEDS)} um/s) x "
+                f"{args.history_samples} samples without a hold, noise {NOISE:.0%} of the "
+                "force range")
+    return (f"relaxed model, standard rheology, contact offset fitted; 3 retract curves x {N} "
+            f"samples, noise {NOISE:.0%} of the force range")
+
+
 def table(recs, args, real_rows, command) -> list[str]:
-    lines = ["# Posterior calibration (`fitting.sample`, NUTS)", "",
+    title = ("# Posterior calibration (`fitting.sample`, NUTS)" if args.model == "relaxed"
+             else "# Posterior calibration, full-history model (`fitting.sample`, NUTS)")
+    lines = [title, "",
              f"Measured {machine()}; numpyro {_numpyro()}. Command:", "",
              f"    {command}", "",
-             f"{len(recs)} synthetic parameter sets (relaxed model, standard rheology, contact "
-             f"offset fitted; 3 retract curves x {N} samples, noise {NOISE:.0%} of the force "
-             f"range; see the script's docstring), {args.chains} chains x {args.draws} draws "
+             f"{len(recs)} synthetic parameter sets ({_sets_text(args)}; see the script's "
+             f"docstring), {args.chains} chains x {args.draws} draws "
              f"after {args.warmup} warm-up each. Coverage: the fraction of sets whose 90 % "
              "credible interval (5-95 %) contains the truth (acceptance 80-97 %; with "
              f"{len(recs)} sets its binomial standard error at 90 % is "
@@ -208,13 +293,14 @@ def table(recs, args, real_rows, command) -> list[str]:
                      f"| {n} | {cov} | {max(p['r_hat'] for p in ps):.4f} | "
                      f"{min(p['ess_bulk'] for p in ps):.0f} | "
                      f"{min(p['ess_tail'] for p in ps):.0f} | |")
-    lines += ["", "The noise scale is sampled per curve (`noise_scale_1..3`). An earlier run of "
-              "this benchmark with one noise scale for all curves of a set (commit 5fc3f20, "
-              "first 25 sets, the same settings) covered the truth in 20, 23, 17, 23 and 20 "
-              "of 25 sets (G0, G1, eta1, work_of_adhesion, contact_offset): eta1 at 68 %. The "
-              "fit's noise estimate of a curve of 40 samples is off by tens of per cent, "
-              "differently for each curve; one common scale cannot correct the weights "
-              "between the curves."]
+    if args.model == "relaxed":
+        lines += ["", "The noise scale is sampled per curve (`noise_scale_1..3`). An earlier "
+                  "run of this benchmark with one noise scale for all curves of a set "
+                  "(commit 5fc3f20, first 25 sets, the same settings) covered the truth in "
+                  "20, 23, 17, 23 and 20 of 25 sets (G0, G1, eta1, work_of_adhesion, "
+                  "contact_offset): eta1 at 68 %. The fit's noise estimate of a curve of 40 "
+                  "samples is off by tens of per cent, differently for each curve; one common "
+                  "scale cannot correct the weights between the curves."]
     good = [r for r in recs if all(p["r_hat"] <= 1.01 and p["ess_bulk"] >= 400
                                    for p in r["params"].values())]
     others = ", ".join(str(r["curve"]) for r in recs if r not in good) or "none"
@@ -257,12 +343,26 @@ def main(argv=None) -> int:
     ap.add_argument("--real-draws", type=int, default=500)
     ap.add_argument("--radius", type=float, default=10e-6)
     ap.add_argument("--real-model", choices=("relaxed", "history"), default="relaxed")
-    ap.add_argument("--records", default="benchmarks/results/posterior_records.jsonl")
-    ap.add_argument("--out", default="benchmarks/results/posterior.md")
+    ap.add_argument("--model", choices=("relaxed", "history"), default="relaxed",
+                    help="the model of the synthetic sets")
+    ap.add_argument("--cells", type=int, default=8, help="foundation cells (history)")
+    ap.add_argument("--history-samples", type=int, default=80)
+    ap.add_argument("--check-cells", action="store_true")
+    ap.add_argument("--records", default=None)
+    ap.add_argument("--out", default=None)
     ap.add_argument("--no-table", action="store_true")
     ap.add_argument("--time-only", type=int, default=0, metavar="K")
+    ap.add_argument("--sets", default="", help="as --time-only, these sets (e.g. 17,33,48)")
+    ap.add_argument("--target-accept", type=float,
+                    default=fitting._posterior.DEFAULT_TARGET_ACCEPT)
     args = ap.parse_args(argv)
-    if args.time_only:
+    stem = "posterior" if args.model == "relaxed" else "posterior_history"
+    args.records = args.records or f"benchmarks/results/{stem}_records.jsonl"
+    args.out = args.out or f"benchmarks/results/{stem}.md"
+    if args.check_cells:
+        check_cells(args)
+        return 0
+    if args.time_only or args.sets:
         run_timing(args)
         return 0
     command = "python benchmarks/bench_posterior.py " + " ".join(sys.argv[1:] if argv is None
@@ -271,6 +371,9 @@ def main(argv=None) -> int:
     real_rows = run_real(args.real, args) if args.real else []
     if not args.no_table and recs:
         write_table(args.out, table(recs, args, real_rows, command))
+    elif real_rows:  # no synthetic sets (--curves 0): the real curves' rows to stdout
+        print(f"Measured {machine()}; numpyro {_numpyro()}. Command:\n\n    {command}")
+        print("\n".join(real_rows))
     return 0
 
 

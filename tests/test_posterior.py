@@ -88,6 +88,19 @@ def test_posterior_agrees_with_truth_and_linearised_errors(fit_result, posterior
     assert "NUTS (numpyro)" in post.summary() and "determined" in post.summary()
 
 
+def test_step_size_adapted_per_chain_and_fixed_after_warmup(posterior):
+    """The recorded step size: one per chain, constant over the kept draws (the warm-up's
+    dual averaging ends with it), and the draws' mean acceptance statistic near the
+    target it was adapted for (dual averaging's aim; 150 draws: within 0.15)."""
+    step = posterior.sample_stats["step_size"]
+    assert step.shape == (CHAINS, DRAWS)
+    assert np.all(step > 0) and np.all(step == step[:, :1])
+    target = posterior.settings["target_accept"]
+    accept = posterior.sample_stats["acceptance_rate"].mean(axis=1)
+    assert np.all(np.abs(accept - target) < 0.15), (accept, target)
+    assert posterior.sample_stats["n_steps"].max() < 2 ** posterior.settings["max_tree_depth"]
+
+
 def test_an_informative_prior_moves_the_posterior_as_gaussians_combine(fit_result):
     """A narrow prior on G0 (centre 5 % above the fit, sd 0.2 % in ln G0): the posterior
     means of all parameters move as the product of the fit's linearised Gaussian (in
@@ -130,7 +143,8 @@ def test_netcdf_groups_json_and_csv(posterior, tmp_path):
         np.testing.assert_array_equal(ds["G0"].values, posterior["G0"])
         assert ds["eta1"].attrs["units"] == "Pa_s"
     with xr.open_dataset(path, group="sample_stats", engine="h5netcdf") as ds:
-        assert {"diverging", "lp", "acceptance_rate", "tree_depth", "energy"} <= set(ds)
+        assert {"diverging", "lp", "acceptance_rate", "tree_depth", "energy",
+                "step_size"} <= set(ds)
         assert int(ds["diverging"].sum()) == posterior.divergences
     with xr.open_dataset(path, group="observed_data", engine="h5netcdf") as ds:
         f = ds["force"].values

@@ -64,16 +64,14 @@ def test_solver_step_limit_without_limits_argument_and_lbfgs_codes():
     np.testing.assert_allclose(lb.z[0], [1.0, 1.0], atol=1e-4)
 
 
-def test_local_rounds_skip_problems_whose_rounds_are_done():
-    # two problems in one pool: the first's local round improves (its global search was
-    # stopped early), the second's does not (already at the closed-form minimum): the
-    # second's rounds end after the widest one, and from then on its starts get limit 0
-    # (not run) while the first's still run with max_steps
+def _two_rosenbrock_problems():
+    """The parameterisation of two bounded coordinates, a `run(starts, limits)` of the pool
+    per problem on the floored Rosenbrock function that records the limits of each call
+    (`calls`), and four starts."""
     info = [("a", "1", "modulus"), ("b", "1", "modulus")]
     param = make_parameterisation(info, {"a": 1.0, "b": 1.0},
                                   bounds={"a": (1e-3, 1e3), "b": (1e-3, 1e3)})
     lm = LevenbergMarquardt(max_steps=200)
-    n = 4
     calls = []
 
     def run(starts, limits):
@@ -82,6 +80,16 @@ def test_local_rounds_skip_problems_whose_rounds_are_done():
                 for zs, lim in zip(starts, limits, strict=True)]
 
     z0 = np.array([[-1.2, 1.0], [-1.0, 2.0], [2.0, 2.0], [0.0, -1.0]])
+    return param, run, calls, z0
+
+
+def test_local_rounds_skip_problems_whose_rounds_are_done():
+    # two problems in one pool: the first's local round improves (its global search was
+    # stopped early), the second's does not (already at the closed-form minimum): the
+    # second's rounds end after the widest one, and from then on its starts get limit 0
+    # (not run) while the first's still run with max_steps
+    param, run, calls, z0 = _two_rosenbrock_problems()
+    n = len(z0)
     first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
     assert not np.any(first[0].converged) and np.all(first[1].converged)
     out = _optimise._local_search([param, param], first, run, n=n, local_rounds=4, seed=0,
@@ -103,19 +111,8 @@ def test_exploring_starts_and_the_best_continued():
     # the exploring limit; a best end point stopped at an exploring limit is continued with
     # max_steps after the rounds, and reaches the closed-form minimum (1, 1); a problem
     # whose best converged is not run again (limit 0)
-    info = [("a", "1", "modulus"), ("b", "1", "modulus")]
-    param = make_parameterisation(info, {"a": 1.0, "b": 1.0},
-                                  bounds={"a": (1e-3, 1e3), "b": (1e-3, 1e3)})
-    lm = LevenbergMarquardt(max_steps=200)
-    n = 4
-    calls = []
-
-    def run(starts, limits):
-        calls.append([np.asarray(lim).tolist() for lim in limits])
-        return [_pool(lm, zs, limits=lim, fn=rosenbrock_floor)
-                for zs, lim in zip(starts, limits, strict=True)]
-
-    z0 = np.array([[-1.2, 1.0], [-1.0, 2.0], [2.0, 2.0], [0.0, -1.0]])
+    param, run, calls, z0 = _two_rosenbrock_problems()
+    n = len(z0)
     first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
     out = _optimise._local_search([param, param], first, run, n=n, local_rounds=1, seed=0,
                                   max_steps=200, explore_steps=2,

@@ -219,10 +219,10 @@ class FitOptions(_Options):
       :data:`DEFAULT_STARTS`; `None` is the default).
     - `screen`: screened points of the global search, 0 or an integer >= `n_starts`
       (default :data:`DEFAULT_SCREEN`; `None` is the default): $\chi^2$ is evaluated (no
-      Jacobian, no iteration: about a fifth of a Levenberg–Marquardt step each) at `screen`
-      points of the search's Latin hypercube, and the `n_starts` − 1 random starts are the
-      best of them (the first start stays the data-based guess). 0: the random starts are
-      the hypercube's first `n_starts` − 1 points, unscreened.
+      Jacobian, no iteration: about a third of a Levenberg–Marquardt step each, measured)
+      at `screen` points of the search's Latin hypercube, and the `n_starts` − 1 random
+      starts are the best of them (the first start stays the data-based guess). 0: the
+      random starts are the hypercube's first `n_starts` − 1 points, unscreened.
     - `max_samples`: largest number of samples per curve, an integer >= 4 (default `None`:
       by model, :data:`fitting._prepare.DEFAULT_MAX_SAMPLES`); subsampled without
       averaging.

@@ -429,6 +429,12 @@ def _best_loss(chi2) -> float:
     return float(np.min(np.where(np.isfinite(chi2), chi2, np.inf)))
 
 
+def _best_index(chi2) -> int:
+    r"""The start of smallest finite $\chi^2$ (the first of equals; 0 if none is finite)."""
+    chi2 = np.asarray(chi2, dtype=float)
+    return int(np.argmin(np.where(np.isfinite(chi2), chi2, np.inf)))
+
+
 def _improved(chi2, before: float) -> bool:
     """A round improved the best loss by more than a relative 1e-7."""
     return _best_loss(chi2) < before * (1.0 - 1e-7)
@@ -484,7 +490,7 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
                 show(f"local round {k + 1} (width x{widen:g}): chi2 {before[j]:.8g} -> "
                      f"{_best_loss(outs[j].chi2):.8g}")
     # the best end point of a problem stopped by an exploring limit: continued
-    best = [int(np.argmin(np.where(np.isfinite(o.chi2), o.chi2, np.inf))) for o in outs]
+    best = [_best_index(o.chi2) for o in outs]
     cut = [int(o.result[b]) == RESULTS.max_steps_reached and ran[j][b] < max_steps
            for j, (o, b) in enumerate(zip(outs, best, strict=True))]
     if any(cut):
@@ -733,7 +739,7 @@ def _best_point(pb: _Problem, out: Solution):
     the free internal coordinates there (the search's own, else computed)."""
     spec, param = pb.spec, pb.param
     z_all, chi2_all = np.asarray(out.z), np.asarray(out.chi2)
-    best = int(np.argmin(np.where(np.isfinite(chi2_all), chi2_all, np.inf)))
+    best = _best_index(chi2_all)
     z = z_all[best]
     u = param.internal_host(z)
     dudz = param.dinternal_dz(z)

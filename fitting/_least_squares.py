@@ -194,7 +194,7 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         # no evaluation here: the state starts at chi2 = inf with J = 0, so the first step
         # is delta = 0 and evaluates r and J at z0 (one copy of the Jacobian in the
         # compiled loop instead of two: the model's Jacobian dominates compile time)
-        r0 = jax.eval_shape(lambda: fn(z0, ctx))
+        r0 = residual_struct(fn, z0, ctx)
         r = jnp.zeros(r0.shape, r0.dtype)
         J = jnp.zeros(r0.shape + z0.shape, r0.dtype)
         one = jnp.asarray(1.0, r0.dtype)
@@ -376,6 +376,15 @@ class LBFGS(AbstractLeastSquaresSolver):
 
 
 # ---- drivers ------------------------------------------------------------------------------
+
+
+def residual_struct(fn, z0, ctx) -> jax.ShapeDtypeStruct:
+    """The shape and dtype of the residuals `fn(z0, ctx)`: from ``fn.residual_struct(z0,
+    ctx)`` where `fn` states them, else by `jax.eval_shape` (which traces `fn`: for the
+    full-history model a trace as long as the compiled loop's own, ~14 s of CPU on a
+    2-core machine, `benchmarks/results/fit_each.md`)."""
+    known = getattr(fn, "residual_struct", None)
+    return known(z0, ctx) if known is not None else jax.eval_shape(fn, z0, ctx)
 
 
 def _loop(solver, fn, state, ctx):

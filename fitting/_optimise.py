@@ -126,6 +126,12 @@ def _fn(spec: ModelSpec):
         param, data = ctx
         return residuals(param.natural(z), data, spec)
 
+    def residual_struct(z, ctx):  # without tracing the model (`residuals`: C*n, flat)
+        _, data = ctx
+        return jax.ShapeDtypeStruct((math.prod(jnp.shape(data.force)),), jnp.result_type(
+            data.force, data.weight, data.noise, z, float))
+
+    fn.residual_struct = residual_struct
     return fn
 
 

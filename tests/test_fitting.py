@@ -808,3 +808,31 @@ def test_screen_and_explore_options_are_checked():
         fitting.FitOptions(radius=R, explore_steps=0)
     o = fitting.FitOptions(radius=R, n_starts=4, screen=4, explore_steps=None)
     assert o.screen == 4 and o.explore_steps == fitting.DEFAULT_EXPLORE_STEPS
+
+
+@pytest.mark.parametrize("contact_point", ["none", "fit"])
+def test_residual_shape_stated_without_tracing_equals_the_traced_one(contact_point):
+    # the search's residual function states the shape and dtype of its residuals from the
+    # data (the solver's initial state is built without tracing the model): the same as
+    # jax.eval_shape of the residuals, for one curve and for two curves of different
+    # lengths fitted jointly (padded), eagerly and under vmap as the pool builds its states
+    from fitting import _optimise
+    from fitting._least_squares import residual_struct
+
+    curves = [_curves()[0], _curves(speeds=SPEEDS[1:2], n=N + 7)[0]]
+    opts = fitting.FitOptions(radius=R, n_starts=STARTS, contact_point=contact_point)
+    for group in ([curves[0]], curves):
+        pb = _optimise._problem(group, opts, rheology="standard",
+                                contact_point=contact_point, previous=None)
+        fn = _optimise._fn(pb.spec)
+        z, ctx = jnp.asarray(pb.zs[0]), (pb.param, pb.data)
+        traced = jax.eval_shape(fn, z, ctx)
+        assert fn.residual_struct(z, ctx) == traced
+        assert traced.shape == (np.size(pb.data.force),)
+        zs = jnp.asarray(pb.zs[:3])
+        ctxs = jax.tree.map(lambda x: jnp.broadcast_to(x, (3,) + jnp.shape(x)), ctx)
+        stated = jax.vmap(lambda zz, c, f=fn: jnp.zeros(residual_struct(f, zz, c).shape))(
+            zs, ctxs)
+        plain = jax.vmap(lambda zz, c, f=fn: jnp.zeros(jax.eval_shape(f, zz, c).shape))(
+            zs, ctxs)
+        assert stated.shape == plain.shape == (3,) + traced.shape

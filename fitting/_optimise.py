@@ -169,7 +169,7 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
 def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0s, *,
                 workers: int = 8, rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8,
                 max_steps: int = 200, optimiser: str = "lm", devices=None,
-                keep_jacobian: bool = False, limits=None) -> Solution:
+                keep_jacobian: bool = False, limits=None, traced=None) -> Solution:
     """Independent problems in one compiled call, scheduled as a pool of `workers` lanes.
 
     `params`, `datas` and `z0s` carry a leading problem axis (stack equally shaped problems
@@ -183,6 +183,10 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     JAX's default backend). With more than one, the problems are split into equal shares
     (the last problem repeated to fill them; its copies are dropped) and every device runs
     its own pool, in one `jax.pmap` call. Results do not depend on the split.
+
+    `traced()`: called once the program is traced, before it is compiled and run (with
+    several devices: before the call), so that a caller can start other Python work in a
+    thread then: tracing is Python, and two traces in two threads take turns on the GIL.
     """
     devices = list(jax.local_devices() if devices is None else devices)
     if not devices:
@@ -198,8 +202,13 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     limits = np.broadcast_to(np.asarray(max_steps if limits is None else limits,
                                         dtype=np.int32), (n,))
     if n_dev == 1:
-        with jax.default_device(devices[0]):
+        with jax.default_device(devices[0]):  # (a part of the key of JAX's trace cache)
+            if traced is not None:  # JAX keeps the trace for the call below
+                _solve_batch.trace(spec, params, datas, z0s, limits, **opts)
+                traced()
             return _solve_batch(spec, params, datas, z0s, limits, **opts)
+    if traced is not None:
+        traced()
     fill = padded_indices(n, n_dev * share)
 
     def split(x):
@@ -254,21 +263,31 @@ def _evaluate_chunk(spec, params, us, ps, datas, radius, *, tabor):
     return model, derived, mu
 
 
-def _compile_in_background(fn, *args, **kwargs) -> threading.Thread:
-    """Call the jitted `fn(*args)` once in a thread, so that its compilation (XLA compiles
-    outside the GIL) overlaps the search's; a later call with equally shaped arguments
-    finds it compiled. Join the thread before that call. An error is left for that call
-    to raise."""
+class _Background:
+    """The jitted `fn(*args, **kwargs)` called once in a thread, started by :meth:`start`
+    (again: nothing), so that its compilation (XLA compiles outside the GIL) overlaps
+    other work; a later call with equally shaped arguments finds it compiled. Start it
+    once the caller's own tracing is done: tracing is Python, and two traces in two
+    threads take turns on the GIL (the README main job: the search's trace, 19 s alone,
+    and the finish's, 14 s alone, each took 33–36 s side by side). :meth:`join` (starts
+    it if need be) before that call. An error is left for that call to raise."""
 
-    def run():
-        try:
-            jax.block_until_ready(fn(*args, **kwargs))
-        except Exception:  # noqa: BLE001 - the real call reports it
-            pass
+    def __init__(self, fn, *args, **kwargs):
+        def run():
+            try:
+                jax.block_until_ready(fn(*args, **kwargs))
+            except Exception:  # noqa: BLE001 - the real call reports it
+                pass
 
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    return thread
+        self._thread = threading.Thread(target=run, daemon=True)
+
+    def start(self) -> None:
+        if self._thread.ident is None:
+            self._thread.start()
+
+    def join(self) -> None:
+        self.start()
+        self._thread.join()
 
 
 def _r2(model, data, mask) -> float:
@@ -603,14 +622,16 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         n_z = len(pb0.zs)
         size = batch.chunk_for(len(idx), problem_bytes=SEARCH_BYTES_PER_RESIDUAL * n_z
                                * int(np.size(pb0.data.ts)))
-        # the finish's device work compiles during the search
+        # the finish's device work compiles during the search (started once the search's
+        # program is traced)
         args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options)
-        model_at = _compile_in_background(_evaluate_chunk, *args, **kw)
+        model_at = _Background(_evaluate_chunk, *args, **kw)
         for c0 in range(0, len(idx), size):
             part = idx[c0:c0 + size]
             t0 = time.perf_counter()
             outs = _search_chunk([problems[g] for g in part], size, options, batch,
-                                 lanes=batch.lanes(size, n_z), show=show)
+                                 lanes=batch.lanes(size, n_z), show=show,
+                                 traced=model_at.start)
             model_at.join()
             t_search = time.perf_counter() - t0
             timings["optimise"] += t_search
@@ -656,10 +677,12 @@ def _pad(problems: dict) -> None:
 
 
 def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
-                  batch: BatchOptions, *, lanes: int, show=None) -> list[Solution]:
+                  batch: BatchOptions, *, lanes: int, show=None,
+                  traced=None) -> list[Solution]:
     """The global search and the local rounds of equally shaped `problems` in one compiled
     pool (:func:`solve_batch`), padded to `size` problems (the last one repeated; its
-    copies are dropped): the host :class:`Solution` of every start of each problem."""
+    copies are dropped): the host :class:`Solution` of every start of each problem.
+    `traced()`: called once the pool's program is traced (before its first call)."""
     fill = [problems[j] for j in padded_indices(len(problems), size)]
     n_z = len(fill[0].zs)
     if fill[0].pool is not None:
@@ -668,11 +691,15 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     datas = _stack([pb.data for pb in fill], n_z)
     spec = fill[0].spec
 
+    first_call = [traced]
+
     def run(starts, limits):
+        hook, first_call[0] = first_call[0], None
         out = jax.device_get(solve_batch(
             spec, params, datas, np.concatenate(starts), limits=np.concatenate(limits),
             workers=lanes, rtol=options.rtol, max_steps=options.max_steps,
-            optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True))
+            optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True,
+            traced=hook))
         return [out.take(slice(j * n_z, (j + 1) * n_z)) for j in range(len(starts))]
 
     # with local rounds to follow, the global search explores (its best is continued)

@@ -836,3 +836,29 @@ def test_residual_shape_stated_without_tracing_equals_the_traced_one(contact_poi
         plain = jax.vmap(lambda zz, c, f=fn: jnp.zeros(jax.eval_shape(f, zz, c).shape))(
             zs, ctxs)
         assert stated.shape == plain.shape == (3,) + traced.shape
+
+
+def test_solve_batch_calls_traced_once_after_its_only_trace(monkeypatch):
+    # `traced`: called once, after the pool's program is traced and before it runs; the
+    # call reuses that trace (the model's residuals are not traced again after the hook),
+    # and the result is the one without the hook
+    from fitting import _optimise
+
+    opts = fitting.FitOptions(radius=R, n_starts=3, contact_point="none")
+    pb = _optimise._problem(_curves()[:1], opts, rheology="standard", contact_point="none",
+                            previous=None)
+    stack = lambda x: jnp.stack([x] * 3)  # noqa: E731
+    params, datas = jax.tree.map(stack, pb.param), jax.tree.map(stack, pb.data)
+    z0s = jnp.asarray(pb.zs[:3])
+    kw = dict(workers=2, max_steps=7, keep_jacobian=True)
+    _optimise._solve_batch.clear_cache()
+    traces, order = [], []
+    real = _optimise.residuals
+    monkeypatch.setattr(_optimise, "residuals",
+                        lambda *a: (traces.append(1), real(*a))[1])
+    got = fitting.solve_batch(pb.spec, params, datas, z0s, traced=lambda: order.append(
+        len(traces)), **kw)
+    assert order == [len(traces)] and len(traces) >= 1
+    want = fitting.solve_batch(pb.spec, params, datas, z0s, **kw)
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        np.testing.assert_array_equal(a, b)

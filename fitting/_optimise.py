@@ -776,8 +776,17 @@ def _best_point(pb: _Problem, out: Solution):
     z = z_all[best]
     u = param.internal_host(z)
     dudz = param.dinternal_dz(z)
-    if out.J is not None and np.all(np.abs(dudz) > 1e-8):
-        r, J = np.asarray(out.r[best]), np.asarray(out.J[best]) / dudz[None, :]
+    # a column whose logistic has saturated (du/dz ~ 0) cannot be divided back; it is not
+    # needed where its parameter is at its bound (the covariance leaves such a parameter
+    # out: `gauss_newton`), so the model's own Jacobian is computed (compiled) only when
+    # a saturated parameter is not at its bound
+    flat = np.abs(dudz) <= 1e-8
+    at = param.at_bound(u)
+    unused = np.array([at[i] is not None for i in param.free], dtype=bool)
+    if out.J is not None and not np.any(flat & ~unused):
+        r = np.asarray(out.r[best])
+        J = np.asarray(out.J[best]) / np.where(flat, 1.0, dudz)[None, :]
+        J[:, flat] = np.nan  # not used: at a bound
     else:
         r, J = (np.asarray(x) for x in internal_jacobian(spec, param, jnp.asarray(u), pb.data))
     u, J = _sort_arms(spec, param, u, J)

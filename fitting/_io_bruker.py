@@ -52,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from ._io_jpk import JPKCurve, _FailedJPKCurve
+from ._io_jpk import JPKCurve
 
 __all__ = ["BRUKER_MAGIC", "BRUKER_SUFFIXES", "BrukerCurve", "is_bruker_suffix",
            "parse_header", "read_bruker", "sniff_bruker"]
@@ -218,8 +218,7 @@ def _trigger(force_list: dict[str, str]) -> tuple[str, float | None]:
     return mode, value
 
 
-def read_bruker(path, *, sensitivity: float | None = None
-                ) -> list[BrukerCurve | _FailedJPKCurve]:
+def read_bruker(path, *, sensitivity: float | None = None) -> list[BrukerCurve]:
     """Read every curve of a Bruker NanoScope force curve or force volume.
 
     **Arguments:**
@@ -234,7 +233,8 @@ def read_bruker(path, *, sensitivity: float | None = None
     x``/``y`` [m] (``Scan Size``), ``position x``/``y`` [m] (cell centres, 0 at the
     scan's lower left corner, in the scan frame), ``spring constant`` [N/m],
     ``sensitivity`` [m/V], ``rate approach``/``retract`` [Hz], ``trigger threshold``
-    [V], ...). A curve that cannot be read is an object that raises its reason.
+    [V], ...). The whole file is one block of integers: it reads completely or not at
+    all (a `ValueError`).
 
     **The 32-bit deflection scale.** NanoScope 9.2 stores 4-byte integers. In the
     32-bit single curve checked (``tests/data``), LSB × V/LSB of ``@4:Z scale`` gives
@@ -397,7 +397,7 @@ def read_bruker(path, *, sensitivity: float | None = None
                          nm_per_v * 1e-9, ramp_m, threshold, tmode, ratio, rates,
                          width["deflection"])
     frame = (_get(defl[0], "Frame direction") or "Up").strip().lower()
-    curves: list[BrukerCurve | _FailedJPKCurve] = []
+    curves: list[BrukerCurve] = []
     for c in range(count):
         meta = dict(meta_all, enum=c)
         if volume:
@@ -412,9 +412,6 @@ def read_bruker(path, *, sensitivity: float | None = None
                 "segment": segment}
         if time is not None:
             cols["time"] = time
-        if not np.all(np.isfinite(force[c])):
-            curves.append(_FailedJPKCurve("non-finite deflection values", meta))
-            continue
         curves.append(BrukerCurve(data=cols, metadata=meta,
                                   segment_names=("approach", "retract"),
                                   styles=("extend", "retract")))

@@ -142,6 +142,16 @@ def test_32bit_scale_without_evidence_is_refused(tmp_path):
         fitting.load_curve(doubled)
 
 
+def test_unverified_layouts_are_refused(tmp_path):
+    hold = _patched(tmp_path, SINGLE32, b"\\Hold Samples: 0", b"\\Hold Samples: 8")
+    with pytest.raises(DataError, match="Hold Samples = 8: curves with a hold"):
+        fitting.load_curve(hold)
+    peakforce = _patched(tmp_path, SINGLE32, b"Operating mode: Force\r",
+                         b"Operating mode: PFQNM\r")
+    with pytest.raises(DataError, match="Operating mode 'PFQNM'"):
+        fitting.load_curve(peakforce)
+
+
 @pytest.mark.parametrize("on_error", ["raise", "keep"])
 def test_truncated_file_is_a_clear_error(tmp_path, on_error):
     cut = tmp_path / "cut.spm"

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ._curve import DEFAULT_LIMITS, DEFAULT_SEGMENT_NAMES, Curve, DataError, Limits
+from ._io_bruker import read_bruker, sniff_bruker
 from ._io_jpk import JPK_SUFFIXES, JPKCurve, read_jpk, segment_kinds
 from ._preprocess import preprocess
 
@@ -67,7 +68,10 @@ def load_afm(
     extend–pause–retract maps) or that is read without afmformats installed goes to
     :func:`fitting._io_jpk.read_jpk`, which reads any layout of extend, retract and pause
     segments into the same columns and metadata (``metadata["reader"]``: ``"afmformats"``
-    or ``"jaxcontact-jpk"``).
+    or ``"jaxcontact-jpk"``). A Bruker NanoScope force curve or force volume (a file that
+    starts with ``\\*Force file list``; afmformats reads none) goes to
+    :func:`fitting._io_bruker.read_bruker` (``metadata["reader"]``:
+    ``"jaxcontact-bruker"``).
 
     * Height: ``height (measured)`` (closed-loop sensor) when present, else
       ``height (piezo)``; choose with ``height_column``. Base displacement toward the
@@ -115,10 +119,11 @@ def load_afm(
         raise ValueError(f"on_error must be 'raise' or 'keep'; got {on_error!r}")
     path = pathlib.Path(path)
     jpk = path.suffix.lower() in JPK_SUFFIXES
+    bruker = path.is_file() and sniff_bruker(path) == "force"
     try:
         import afmformats
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        if not jpk:
+        if not (jpk or bruker):
             raise ImportError(
                 "reading AFM files needs afmformats: pip install 'jaxcontact[afm]'"
             ) from exc
@@ -135,7 +140,14 @@ def load_afm(
             meta_override["spring constant"] = float(spring_constant)
     datasets = None
     refused = "afmformats is not installed"
-    if afmformats is not None:
+    reader = "afmformats"
+    if bruker:  # afmformats reads no Bruker files
+        try:
+            datasets = read_bruker(path, sensitivity=sensitivity)
+        except ValueError as exc:
+            raise DataError(f"{path}: Bruker NanoScope force file: {exc}") from None
+        reader = "jaxcontact-bruker"
+    elif afmformats is not None:
         afm_log = logging.getLogger("afmformats")
         level = afm_log.level
         afm_log.setLevel(logging.CRITICAL)  # its failed-recogniser tracebacks are not errors
@@ -159,7 +171,6 @@ def load_afm(
             afm_log.setLevel(level)
         if datasets is not None and not datasets:
             raise DataError(f"{path}: afmformats found no curves in the file")
-    reader = "afmformats"
     if datasets is None:  # a JPK file afmformats refuses or cannot be asked about
         try:
             datasets = read_jpk(path, sensitivity=sensitivity,
@@ -168,13 +179,14 @@ def load_afm(
             raise DataError(f"{path}: {refused}; the JPK reader cannot read it "
                             f"either ({exc})") from None
         reader = "jaxcontact-jpk"
-        if modality is not None:  # as afmformats: only the curves of that modality
-            modes = {ds.modality for ds in datasets if isinstance(ds, JPKCurve)}
-            datasets = [ds for ds in datasets
-                        if not isinstance(ds, JPKCurve) or ds.modality == modality]
-            if not any(isinstance(ds, JPKCurve) for ds in datasets):
-                raise DataError(f"{path}: no {modality} curves in the file (its curves: "
-                                f"{', '.join(sorted(modes)) or 'none readable'})")
+    if reader != "afmformats" and modality is not None:
+        # as afmformats: only the curves of that modality
+        modes = {ds.modality for ds in datasets if isinstance(ds, JPKCurve)}
+        datasets = [ds for ds in datasets
+                    if not isinstance(ds, JPKCurve) or ds.modality == modality]
+        if not any(isinstance(ds, JPKCurve) for ds in datasets):
+            raise DataError(f"{path}: no {modality} curves in the file (its curves: "
+                            f"{', '.join(sorted(modes)) or 'none readable'})")
     curves = []
     for n, ds in enumerate(datasets):
         try:

@@ -6,6 +6,7 @@ import pathlib
 
 from ._curve import Curve, DataError
 from ._io_afm import FailedCurve, load_afm
+from ._io_bruker import BRUKER_SUFFIXES, is_bruker_suffix, sniff_bruker
 from ._io_csv import load_csv
 from ._io_jpk import JPK_SUFFIXES
 
@@ -30,7 +31,9 @@ def supported_formats() -> str:
     parts = [f"tables {' '.join(TABLE_SUFFIXES)} (header row; see load_csv)",
              f"{' '.join(JPK_SUFFIXES)} (JPK Instruments force curves and maps, any layout "
              "of extend, retract and pause segments; through afmformats when it reads "
-             "them, else the built-in JPK reader)"]
+             "them, else the built-in JPK reader)",
+             f"{' '.join(BRUKER_SUFFIXES[:1])} .000 .001 ... (Bruker NanoScope force curves "
+             "and force volumes, built-in reader; not PeakForce capture .pfc)"]
     try:
         import afmformats.formats as afm_formats
     except ImportError:  # pragma: no cover - depends on the environment
@@ -150,6 +153,15 @@ def load_curve(path, *, format: str | None = None, on_error: str = "raise", **kw
                     raise DataError(f"{path}: not a table ({t}); as an instrument file "
                                     f"read by afmformats: {a}") from None
             raise table_error from None
+    if is_bruker_suffix(path):
+        kind = sniff_bruker(path)
+        if kind == "force":
+            return load_afm(path, on_error=on_error, **_afm_options(path, kw))
+        what = ("a NanoScope file but not a force file (no \\*Force file list: an image?)"
+                if kind == "other" else "not a Bruker NanoScope force file (it does not "
+                "start with \\*Force file list)")
+        raise DataError(f"{path}: {what}; the {path.suffix!r} suffix is read as Bruker "
+                        f"force curves and volumes only; supported: {supported_formats()}")
     if _afm_recipes(path.suffix) or suffix in JPK_SUFFIXES:
         return load_afm(path, on_error=on_error, **kw)
     raise DataError(

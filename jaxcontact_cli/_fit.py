@@ -92,7 +92,8 @@ def add_fit_arguments(parser):
     parser.add_argument("files", nargs="+", metavar="FILE",
                         help="curves: CSV/TSV (time_s,displacement_m,force_N; units in the "
                              "header or --units) or AFM instrument files (afmformats; JPK "
-                             "also without it)")
+                             "also without it; Bruker NanoScope force curves and volumes "
+                             ".spm, .000, .001, ... built in)")
     parser.add_argument("--radius", type=float, default=None, metavar="M",
                         help="radius of curvature of a spherical indenter [m] in the "
                              "paraboloid (small-indentation) approximation: the same as "

@@ -9,9 +9,10 @@
    posterior in units of its own width) and its standard deviation (1 for a posterior as
    wide as its errors), and the coverage of the 90 % interval.
 2. `--refit`: those sets fitted again (`fitting.fit`, as the calibration fits them) on
-   `--cells` foundation cells (the curves are generated on 64; the calibration fits on 8),
-   with the fit's z-score of Δγ beside the 8-cell fit's from the records: whether the
-   grid causes a bias.
+   `--cells` foundation cells (the curves are generated on 64; the calibration fits on 8)
+   and with `--history-samples` samples a curve, with the fit's z-score of Δγ beside the
+   calibration's fit's from the records, and their mean: whether the grid or the number
+   of samples causes a bias.
 """
 
 import argparse
@@ -35,6 +36,8 @@ def main(argv=None):
                                              / "results" / "posterior_history_records.jsonl"))
     ap.add_argument("--refit", default="")
     ap.add_argument("--cells", type=int, default=64)
+    ap.add_argument("--history-samples", type=int, default=80,
+                    help="samples a curve of the refitted sets (the calibration's: 80)")
     args = ap.parse_args(argv)
     recs = [json.loads(line) for line in open(args.records)]
     print(f"{len(recs)} sets ({args.records})\n\n| parameter | z mean | z sd | coverage of "
@@ -53,18 +56,22 @@ def main(argv=None):
     import bench_posterior as bp
 
     by_set = {r["curve"]: r for r in recs}
-    print(f"\n| set | Δγ fit z, {args.cells} cells | Δγ fit z, 8 cells (records) |\n"
-          "| --- | --- | --- |")
+    print(f"\n| set | Δγ fit z, {args.cells} cells, {args.history_samples} samples a curve | "
+          "Δγ fit z, 8 cells, 80 samples (records) |\n| --- | --- | --- |")
+    zs = []
     for i in (int(x) for x in args.refit.split(",")):
-        ns = types.SimpleNamespace(cells=args.cells, history_samples=80, model="history",
-                                   radius=10e-6)
+        ns = types.SimpleNamespace(cells=args.cells, history_samples=args.history_samples,
+                                   model="history", radius=10e-6)
         p, data = bp.make_set(i, ns)
         res = bp.fit_set(data, ns)
         k = res.names.index("work_of_adhesion")
         t = p["work_of_adhesion"]
         rec = by_set.get(i, {}).get("params", {}).get("work_of_adhesion")
         z8 = (rec["fit_value"] - t) / rec["fit_stderr"] if rec else float("nan")
-        print(f"| {i} | {(res.values[k] - t) / res.stderr[k]:+.2f} | {z8:+.2f} |", flush=True)
+        zs.append((res.values[k] - t) / res.stderr[k])
+        print(f"| {i} | {zs[-1]:+.2f} | {z8:+.2f} |", flush=True)
+    se = np.std(zs, ddof=1) / np.sqrt(len(zs))
+    print(f"\nmean z {np.mean(zs):+.2f} (standard error {se:.2f})")
 
 
 if __name__ == "__main__":

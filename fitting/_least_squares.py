@@ -381,8 +381,8 @@ class LBFGS(AbstractLeastSquaresSolver):
 def residual_struct(fn, z0, ctx) -> jax.ShapeDtypeStruct:
     """The shape and dtype of the residuals `fn(z0, ctx)`: from ``fn.residual_struct(z0,
     ctx)`` where `fn` states them, else by `jax.eval_shape` (which traces `fn`: for the
-    full-history model a trace as long as the compiled loop's own, ~14 s of CPU on a
-    2-core machine, `benchmarks/results/fit_each.md`)."""
+    full-history model a trace as long as the compiled loop's own; measured in
+    `benchmarks/results/fit_each.md`, "A cold fit")."""
     known = getattr(fn, "residual_struct", None)
     return known(z0, ctx) if known is not None else jax.eval_shape(fn, z0, ctx)
 

@@ -268,8 +268,8 @@ class _Background:
     (again: nothing), so that its compilation (XLA compiles outside the GIL) overlaps
     other work; a later call with equally shaped arguments finds it compiled. Start it
     once the caller's own tracing is done: tracing is Python, and two traces in two
-    threads take turns on the GIL (the README main job: the search's trace, 19 s alone,
-    and the finish's, 14 s alone, each took 33–36 s side by side). :meth:`join` (starts
+    threads take turns on the GIL (each then takes about as long as both together:
+    `benchmarks/results/fit_each.md`, "A cold fit"). :meth:`join` (starts
     it if need be) before that call. An error is left for that call to raise."""
 
     def __init__(self, fn, *args, **kwargs):

@@ -497,9 +497,9 @@ def sample(
     **Calibration** (synthetic sets of known parameters; ``benchmarks/results/posterior*.md``):
     the 90 % intervals of the relaxed model cover the truth in 84–94 % of 50 sets; the
     full-history model's are as wide as the errors, but with few samples around the jump-off
-    (80 a curve) the work of adhesion comes out high by ~0.6–0.8 of its standard error, in
-    the fit and the posterior alike (77 % coverage over 22 sets), a bias that vanished with
-    320 samples a curve (``posterior_history_bias.md``).
+    (80 a curve) the work of adhesion comes out high by ~0.4–0.8 of its standard error, in
+    the fit and the posterior alike, a bias that vanished with 320 samples a curve
+    (``posterior_history_bias.md``).
 
     **Raises:** `ValueError` naming the argument; `ImportError` when numpyro is missing.
     """

@@ -691,10 +691,9 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     datas = _stack([pb.data for pb in fill], n_z)
     spec = fill[0].spec
 
-    first_call = [traced]
-
     def run(starts, limits):
-        hook, first_call[0] = first_call[0], None
+        nonlocal traced  # called on the first call only
+        hook, traced = traced, None
         out = jax.device_get(solve_batch(
             spec, params, datas, np.concatenate(starts), limits=np.concatenate(limits),
             workers=lanes, rtol=options.rtol, max_steps=options.max_steps,

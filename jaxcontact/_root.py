@@ -3,6 +3,9 @@ r"""Scalar root finding with implicit differentiation (the one home of the root 
 - `bracketed_root`: any sign change on a bracket (safeguarded Newton, below).
 - `concave_root`: the root of a function that is concave on its bracket (monotone Newton
   from the right end, a fixed number of steps; the detachment front of the foundation).
+- `convex_root`: the root of an increasing function that is convex on its bracket, from a
+  start to the right of it (monotone Newton, a fixed number of steps written out, no loop;
+  the exact sphere's radii inside a cell of the foundation grid).
 - `newton_root`: damped Newton steps from a guess for an increasing function (the
   equilibrium of a compliant loading system), differentiated implicitly.
 - `newton_iterate`: the Newton iteration itself, with the caller's evaluation (residual,
@@ -41,7 +44,7 @@ from jax import lax
 
 from ._sharding import while_loop
 
-__all__ = ["bracketed_root", "concave_root", "newton_iterate", "newton_root"]
+__all__ = ["bracketed_root", "concave_root", "convex_root", "newton_iterate", "newton_root"]
 
 
 def _solve(fn, lo, hi, steps, dtype):
@@ -192,35 +195,100 @@ def concave_root(
     hi: jax.Array,
     *,
     steps: int,
+    active: jax.Array | None = None,
 ) -> jax.Array:
     r"""Root of `fn` in `[lo, hi]` with `fn(lo) >= 0 > fn(hi)` and `fn` concave there.
 
     Newton's method started at `hi` converges monotonically from the right for a concave
     function (each tangent lies above the graph); a bisection guard keeps the iterate inside
-    the shrinking bracket. Runs `steps` iterations (static; no early stop, so that it costs
-    the same on every lane). Differentiated implicitly (`jax.lax.custom_root`).
+    the shrinking bracket. At most `steps` iterations (static); a lane stops once its
+    Newton correction is below $4\varepsilon|x|$ (after applying it: the iterates left
+    move by round-off) or `fn` vanishes, and at once where `active` is False (a root
+    that is not used: under `vmap` the loop runs until every lane has stopped, so the
+    lanes of a branch not taken must not hold it). Near a double root (the fold of the
+    front) Newton converges linearly and the lane uses all `steps`. Differentiated
+    implicitly (`jax.lax.custom_root`).
     """
     lo = lax.stop_gradient(lo)
     hi = lax.stop_gradient(hi)
+    idle = jnp.asarray(False) if active is None else jnp.logical_not(active)
 
     def solve(f, _guess):
-        def body(_, carry):
-            a, b, x = carry
-            fx, dfx = jax.jvp(f, (x,), (jnp.ones_like(x),))
-            a = jnp.where(fx >= 0, x, a)
-            b = jnp.where(fx >= 0, b, x)
-            newton = x - fx / jnp.where(dfx == 0, 1.0, dfx)
-            good = (dfx != 0) & jnp.isfinite(newton) & (newton >= a) & (newton <= b)
-            x_new = jnp.where(good, newton, 0.5 * (a + b))
-            return a, b, jnp.where(fx == 0, x, x_new).astype(x.dtype)
+        eps4 = 4.0 * jnp.finfo(jnp.result_type(hi)).eps
 
-        return lax.fori_loop(0, steps, body, (lo, hi, hi))[2]
+        def f_df(x):
+            return jax.jvp(f, (x,), (jnp.ones_like(x),))
+
+        def cond(carry):
+            i, _, _, _, _, _, done = carry
+            return (i < steps) & jnp.logical_not(done)
+
+        # f and f' of an iterate are evaluated once, at the end of the iteration that makes
+        # it, and carried: every decision of the next iteration reads the same stored
+        # values (XLA may compute one expression in two kernels, not always to the same
+        # bits: near the root the sign of f in the bracket update and in the stop test
+        # could disagree)
+        def body(carry):
+            i, a, b, x, fx, dfx, done = carry
+            a_n = jnp.where(fx >= 0, x, a)
+            b_n = jnp.where(fx >= 0, b, x)
+            newton = x - fx / jnp.where(dfx == 0, 1.0, dfx)
+            good = (dfx != 0) & jnp.isfinite(newton) & (newton >= a_n) & (newton <= b_n)
+            x_new = jnp.where(good, newton, 0.5 * (a_n + b_n))
+            x_new = jnp.where(fx == 0, x, x_new).astype(x.dtype)
+            stop = (fx == 0) | (good & (jnp.abs(newton - x) <= eps4 * jnp.abs(x)))
+            f_new, df_new = f_df(x_new)
+            keep = lambda old, new: jnp.where(done, old, new)  # noqa: E731
+            return (i + 1, keep(a, a_n), keep(b, b_n), keep(x, x_new),
+                    keep(fx, f_new.astype(fx.dtype)), keep(dfx, df_new.astype(dfx.dtype)),
+                    done | stop)
+
+        f0, df0 = f_df(hi)
+        carry = (jnp.asarray(0), lo, hi, hi, f0, df0, jnp.broadcast_to(idle, jnp.shape(hi)))
+        return while_loop(cond, body, carry)[3]
 
     def tangent_solve(g, y):
         slope = g(jnp.ones_like(y))
         return y / jnp.where(slope == 0, 1.0, slope)
 
     return lax.custom_root(fn, hi, solve, tangent_solve)
+
+
+def convex_root(
+    fn: Callable[[jax.Array], jax.Array],
+    start: jax.Array,
+    lo: jax.Array,
+    hi: jax.Array,
+    *,
+    steps: int,
+) -> jax.Array:
+    r"""Root of `fn`, increasing and convex on `[lo, hi]`, clipped to `[lo, hi]`.
+
+    Newton's method from `start` $\ge \min(x^*, \mathrm{hi})$: the tangent of a convex
+    function lies below it, so every iterate stays to the right of the root and the
+    iterates decrease monotonically onto it (onto `lo` when the root lies below it; a root
+    above `hi` gives `hi`). `steps` (static) iterations written out in the program, without
+    a loop or a convergence test: under `vmap` a `while` loop runs every lane to the
+    slowest, and each of its iterations costs a dispatch of every kernel; the caller picks
+    `steps` from a measured worst case. Differentiated implicitly
+    (`jax.lax.custom_root`), as `bracketed_root` (also at a clipped end).
+    """
+    lo = lax.stop_gradient(lo)
+    hi = lax.stop_gradient(hi)
+
+    def solve(f, x0):
+        x = jnp.clip(lax.stop_gradient(x0), lo, hi)
+        for _ in range(steps):
+            fx, dfx = jax.jvp(f, (x,), (jnp.ones_like(x),))
+            newton = x - fx / jnp.where(dfx > 0, dfx, 1.0)
+            x = jnp.where((dfx > 0) & jnp.isfinite(newton), jnp.clip(newton, lo, hi), x)
+        return x
+
+    def tangent_solve(g, y):
+        slope = g(jnp.ones_like(y))
+        return y / jnp.where(slope == 0, 1.0, slope)
+
+    return lax.custom_root(fn, start, solve, tangent_solve)
 
 
 def newton_iterate(evaluate, x0, aux0, *, steps, slope_floor, fallback):

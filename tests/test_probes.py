@@ -153,6 +153,54 @@ def test_sphere_limit_is_an_error_not_an_extrapolation():
     assert np.all(np.isinf(np.asarray(s.g(jnp.array([0.96, 1.0, 2.0]) * R))))
 
 
+def test_sphere_stationary_radius_against_brent():
+    """The maximiser of the criterion in a cell of the foundation grid: the root of
+    sqrt(x) g'(x) = q clipped to [lo, hi], against scipy's Brent method on Sneddon's g'
+    (written from the arc, not from the implementation's series), and against the generic
+    bracketed root of the profiles; eagerly, under jit/vmap, and in float32."""
+    from scipy.optimize import brentq
+
+    s = jc.Sphere(R)
+
+    def dg(x):  # d/dx of g = (x/2) ln((R+x)/(R-x)), the log by log1p (tiny x)
+        return 0.5 * np.log1p(2 * x / (R - x)) + x * R / (R * R - x * x)
+
+    def ref(q, lo, hi):
+        h = lambda x: np.sqrt(x) * dg(x) - q  # noqa: E731
+        if h(hi) <= 0:
+            return hi
+        if h(lo) >= 0:
+            return lo
+        return brentq(h, lo, hi, xtol=1e-30, rtol=1e-15, maxiter=500)
+
+    roots = np.concatenate([np.geomspace(1e-7, 0.9, 40), [0.93, 0.949]]) * R
+    cases = []
+    for x in roots:
+        q = np.sqrt(x) * dg(x)
+        for lo, hi in [(0.0, 0.95 * R), (0.98 * x, 1.02 * x), (0.5 * x, min(3 * x, 0.95 * R)),
+                       (1.1 * x, min(2 * x, 0.95 * R)), (0.2 * x, 0.9 * x)]:
+            if lo <= hi:
+                cases.append((q, lo, hi))
+    cases.append((0.0, 0.0, 0.5 * R))
+    q, lo, hi = (np.array(c) for c in zip(*cases, strict=True))
+    want = np.array([ref(*c) for c in cases])
+    got = jax.jit(jax.vmap(s.stationary_radius))(q, lo, hi)
+    np.testing.assert_allclose(got, want, rtol=2e-15, atol=1e-30)
+    # the generic bracketed root agrees (a second method)
+    from jaxcontact._profiles import numerical_stationary_radius
+    generic = jax.vmap(lambda *a: numerical_stationary_radius(s, *a))(q, lo, hi)
+    np.testing.assert_allclose(got, generic, rtol=1e-13)
+    # eagerly, one point
+    np.testing.assert_allclose(s.stationary_radius(q[10], lo[10], hi[10]), want[10],
+                               rtol=2e-15)
+    # float32: to its round-off
+    s32 = jc.Sphere(np.float32(R))
+    got32 = jax.vmap(s32.stationary_radius)(q.astype(np.float32), lo.astype(np.float32),
+                                            hi.astype(np.float32))
+    assert got32.dtype == np.float32
+    np.testing.assert_allclose(got32, want, rtol=3e-6, atol=1e-30)
+
+
 # --------------------------------------------------------------------------------------
 # pyramids
 # --------------------------------------------------------------------------------------

@@ -1,4 +1,5 @@
-"""Tests of the scalar root finder (`jaxcontact._root.bracketed_root`)."""
+"""Tests of the scalar root finders (`jaxcontact._root`: `bracketed_root`, `concave_root`,
+`convex_root`)."""
 
 import math
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from jaxcontact._root import bracketed_root
+from jaxcontact._root import bracketed_root, concave_root, convex_root
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
@@ -160,3 +161,76 @@ def test_trapped_by_round_off_stops_early_with_the_full_loops_answer():
                 *[jnp.asarray([v, v]) for v in case])
         assert evaluations[0] <= 2 * 14
         assert [float(x) for x in lanes] == [b, b]
+
+
+def _counted(f, evaluations):
+    def tick(_):
+        evaluations[0] += 1
+
+    def g(x):
+        jax.debug.callback(tick, x)
+        return f(x)
+    return g
+
+
+def test_concave_root_stops_at_the_root_and_idle_lanes_do_not_hold_the_loop():
+    # the criterion of the detachment front inside a cell: R(x) = al - be x^2 + c sqrt(x),
+    # concave; its root right of the maximum, by Brent on the same formula in numpy
+    al, be, c = 1.0, 3.0, 0.5
+    lo, hi = 0.2, 1.5
+
+    def crit(x):
+        return al - be * x * x + c * jnp.sqrt(x)
+
+    root = brentq(lambda x: al - be * x * x + c * np.sqrt(x), lo, hi, xtol=1e-30, rtol=1e-15)
+    evaluations = [0]
+    got = jax.jit(lambda: concave_root(_counted(crit, evaluations), lo, hi, steps=16))()
+    assert abs(float(got) - root) <= 4e-16 * root
+    one = evaluations[0]
+    assert one <= 9, one  # quadratic convergence: far fewer than the 16 steps allowed
+    # under vmap: a lane that is not active returns at once (its bracket is not even a
+    # valid one: f(hi) > 0 would bisect for all 16 steps) and the active lane's root is
+    # the same, to the bit
+    evaluations[0] = 0
+    both = jax.jit(jax.vmap(lambda h, act: concave_root(
+        _counted(crit, evaluations), lo, h, steps=16, active=act)))(
+            jnp.asarray([hi, 0.3]), jnp.asarray([True, False]))
+    assert float(both[0]) == float(got)
+    assert evaluations[0] <= 2 * one, evaluations[0]
+    # implicit derivative: d root / d al = -1 / R'(root)
+    d = jax.grad(lambda a: concave_root(lambda x: a - be * x * x + c * jnp.sqrt(x), lo, hi,
+                                        steps=16))(al)
+    np.testing.assert_allclose(d, 1.0 / (2 * be * root - 0.5 * c / math.sqrt(root)),
+                               rtol=1e-12)
+
+
+def test_concave_root_near_a_double_root():
+    # the fold of the front: R = eps - (x - 1)^2 on [1, 2], roots 1 +- sqrt(eps); Newton
+    # converges linearly from the right as eps -> 0, the loop ends at `steps`
+    for eps in (1e-4, 1e-8):
+        got = float(concave_root(lambda x, e=eps: e - (x - 1.0) ** 2, 1.0, 2.0, steps=16))
+        want = 1.0 + math.sqrt(eps)
+        np.testing.assert_allclose(got, want, rtol=1e-12 if eps > 1e-6 else 1e-6)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_convex_root_from_the_right_and_clipped_ends(dtype):
+    # x^(3/2) (1 + x^2) = q: increasing and convex on [0, 2]; starts at the power law's
+    # root (q)^(2/3), which lies at or right of the root
+    def f(q):
+        return lambda x: x**1.5 * (1 + x * x) - q
+
+    eps = float(jnp.finfo(dtype).eps)
+    for q in (1e-6, 0.3, 2.0, 5.0):
+        want = brentq(lambda x, q=q: x**1.5 * (1 + x * x) - q, 0.0, 2.0, xtol=1e-30, rtol=1e-15)
+        got = convex_root(f(dtype(q)), dtype(q) ** (2 / 3), dtype(0.0), dtype(2.0), steps=8)
+        assert got.dtype == dtype
+        assert abs(float(got) - want) <= 8 * eps * want, (q, float(got), want)
+    # a root below lo gives lo, above hi gives hi
+    assert float(convex_root(f(0.3), 0.3 ** (2 / 3), 0.8, 2.0, steps=8)) == 0.8
+    assert float(convex_root(f(50.0), 50.0 ** (2 / 3), 0.0, 2.0, steps=8)) == 2.0
+    # implicit derivative: d root / dq = 1 / f'(root)
+    if dtype == jnp.float64:
+        r = brentq(lambda x: x**1.5 * (1 + x * x) - 0.3, 0.0, 2.0, xtol=1e-30, rtol=1e-15)
+        d = jax.grad(lambda q: convex_root(f(q), 0.3 ** (2 / 3), 0.0, 2.0, steps=8))(0.3)
+        np.testing.assert_allclose(d, 1.0 / (1.5 * r**0.5 + 3.5 * r**2.5), rtol=1e-12)

@@ -303,7 +303,8 @@ class _Model(eqx.Module):
                 # implicit-function tangent)
                 return jnp.where(jump, xx - mid, self.cell_R(xx, al, be))
 
-            root = concave_root(resid, lo, hi, steps=_ROOT_STEPS)
+            # `active`: under vmap the lanes that do not recede do not hold the loop
+            root = concave_root(resid, lo, hi, steps=_ROOT_STEPS, active=recede)
             a_new = jnp.where(jump, 0.0, root)
             s_edge = pick(cells.s_lo, cell) + pick(cells.slope, cell) * (
                 self.geo.zeta(root) - pick(cells.z_lo, cell)

@@ -96,7 +96,7 @@ def _sphere_integral(s):
 #: Newton steps of the exact sphere's stationary radius (`convex_root` from the
 #: paraboloid's value; worst start over roots s = x/R in [1e-8, 0.95] and every bracket
 #: end: relative error 2.5e-7 after 6 steps, 3e-16 after 8)
-_BRACKET_STEPS = 8
+_STATIONARY_STEPS = 8
 
 
 def _psi(s):
@@ -225,7 +225,7 @@ class Sphere(AbstractCurvedProfile):
         s_lo = jnp.clip(lax.stop_gradient(lo), 0.0, SPHERE_LIMIT * R) / R
         s_hi = jnp.clip(lax.stop_gradient(hi), 0.0, SPHERE_LIMIT * R) / R
         s = convex_root(lambda s: _psi(s) - Q, (0.5 * Q) ** (2.0 / 3.0), s_lo, s_hi,
-                        steps=_BRACKET_STEPS)
+                        steps=_STATIONARY_STEPS)
         return R * s
 
 

@@ -2,10 +2,11 @@ r"""Scalar root finding with implicit differentiation (the one home of the root 
 
 - `bracketed_root`: any sign change on a bracket (safeguarded Newton, below).
 - `concave_root`: the root of a function that is concave on its bracket (monotone Newton
-  from the right end, a fixed number of steps; the detachment front of the foundation).
+  from the right end, at most a fixed number of steps, each lane stopping once converged;
+  the detachment front of the foundation).
 - `convex_root`: the root of an increasing function that is convex on its bracket, from a
   start to the right of it (monotone Newton, a fixed number of steps written out, no loop;
-  the exact sphere's radii inside a cell of the foundation grid).
+  the exact sphere's stationary radius of the criterion in a cell of the foundation grid).
 - `newton_root`: damped Newton steps from a guess for an increasing function (the
   equilibrium of a compliant loading system), differentiated implicitly.
 - `newton_iterate`: the Newton iteration itself, with the caller's evaluation (residual,
@@ -189,6 +190,13 @@ def bracketed_root(
     return lax.custom_root(fn, guess, solve, tangent_solve)
 
 
+def _divide_by_slope(g, y):
+    """The tangent solve of a scalar `custom_root`: `y / f'(x)` (`g` the linearised `f`;
+    a zero slope divides by 1, leaving a finite tangent where the root is not used)."""
+    slope = g(jnp.ones_like(y))
+    return y / jnp.where(slope == 0, 1.0, slope)
+
+
 def concave_root(
     fn: Callable[[jax.Array], jax.Array],
     lo: jax.Array,
@@ -247,11 +255,7 @@ def concave_root(
         carry = (jnp.asarray(0), lo, hi, hi, f0, df0, jnp.broadcast_to(idle, jnp.shape(hi)))
         return while_loop(cond, body, carry)[3]
 
-    def tangent_solve(g, y):
-        slope = g(jnp.ones_like(y))
-        return y / jnp.where(slope == 0, 1.0, slope)
-
-    return lax.custom_root(fn, hi, solve, tangent_solve)
+    return lax.custom_root(fn, hi, solve, _divide_by_slope)
 
 
 def convex_root(
@@ -284,11 +288,7 @@ def convex_root(
             x = jnp.where((dfx > 0) & jnp.isfinite(newton), jnp.clip(newton, lo, hi), x)
         return x
 
-    def tangent_solve(g, y):
-        slope = g(jnp.ones_like(y))
-        return y / jnp.where(slope == 0, 1.0, slope)
-
-    return lax.custom_root(fn, start, solve, tangent_solve)
+    return lax.custom_root(fn, start, solve, _divide_by_slope)
 
 
 def newton_iterate(evaluate, x0, aux0, *, steps, slope_floor, fallback):

@@ -355,8 +355,10 @@ def _solve(rheology, profile, dgamma, depth, ts, velocity, displacement, contact
         m = lax.cummin(d_eff, axis=0)
     attached = m >= h_crit
     receding = attached & (m < h_pin) & can_recede
-    # safe input for lanes not on the receding front: the root at max(a0, 2 a_fold)
-    a_safe = jnp.maximum(a0, 2 * a_fold)
+    # safe input for lanes not on the receding front: the root at max(a0, 2 a_fold), within
+    # the radii the profile admits (beyond them h is infinite: the stand-in's bracket held
+    # inf - inf, and its root bisected for 50 iterations on every sample of the lane)
+    a_safe = jnp.minimum(jnp.maximum(a0, 2 * a_fold), profile.max_radius)
     m_safe = jnp.where(receding, m, front_displacement(profile, a_safe, c))
     a_root = profile.front_radius(m_safe, c, a_fold, jnp.maximum(a0, a_safe))
     radius = jnp.where(receding, a_root, jnp.where(attached, a0, 0.0))

@@ -345,6 +345,48 @@ def test_retract_exact_sphere_relaxed_start_and_paraboloid_limit():
     assert bool(jnp.all(jnp.isnan(lanes.force[2])))
 
 
+def test_retract_exact_sphere_large_fold_stand_in_does_not_iterate(monkeypatch):
+    # a strongly adhesive contact: the fold radius exceeds half the admitted radius, so the
+    # stand-in root of the samples that do not recede (at max(a0, 2 a_fold)) lay beyond
+    # the exact sphere's limit, where g is infinite. Its bracket then held inf - inf and the
+    # root bisected to the iteration limit on every sample (2.3x the cost of a whole
+    # Jacobian of a fit). The answer is the JKR curve's; the loops stop within a few steps.
+    import jaxcontact._root as root_module
+
+    counts = []
+    loop = root_module.while_loop
+
+    def counting_loop(cond, body, carry):
+        out = loop(cond, body, carry)
+        jax.debug.callback(lambda i: counts.append(int(np.max(i))), out[0])
+        return out
+
+    monkeypatch.setattr(root_module, "while_loop", counting_loop)
+    jax.clear_caches()  # trace again, through the counting loop
+    s = jc.Sphere(R)
+    depth = sneddon_depth(0.75 * R, R)
+    ts = jnp.linspace(0.0, 8000.0, 120)
+    w = jnp.array([5e-3, 6e-3])
+    lanes = jax.vmap(lambda w_: jc.retract(RHEO, s, w_, ts, depth=depth,
+                                           velocity=depth / 2000.0, throw=False))(w)
+    jax.block_until_ready(lanes.force)
+    monkeypatch.setattr(root_module, "while_loop", loop)
+    jax.clear_caches()
+    assert bool(jnp.all(2 * lanes.details.fold_radius > s.max_radius))
+    assert counts and max(counts) <= 16, max(counts)
+    for k, w_k in enumerate(np.asarray(w)):
+        assert int(lanes.result._value[k]) == int(jc.RESULTS.detached._value)
+        # the receding front is the JKR curve of E* = 4 G_inf and w G_g / G_inf; its
+        # force-control minimum lies beyond the initial radius 0.75 R here, so the largest
+        # tensile force is the curve's value at the initial radius
+        w_eff = w_k * G_GLASS / G_INF
+        a_f, _, _ = jkr_sphere_minimum(w_eff, 4 * G_INF, "force")
+        assert a_f > 0.75 * R
+        f_a0 = sneddon_force(0.75 * R, R, 4 * G_INF) - np.sqrt(
+            8 * np.pi * w_eff * 4 * G_INF * (0.75 * R) ** 3)
+        np.testing.assert_allclose(lanes.max_tensile_force[k], f_a0, rtol=1e-8)
+
+
 @pytest.mark.slow  # extended (the default run's time); the same limits of retract:
 # test_retract_exact_sphere_relaxed_start_and_paraboloid_limit
 def test_simulate_exact_sphere_long_hold_and_paraboloid_limit():

@@ -211,11 +211,13 @@ def concave_root(
     function (each tangent lies above the graph); a bisection guard keeps the iterate inside
     the shrinking bracket. At most `steps` iterations (static); a lane stops once its
     Newton correction is below $4\varepsilon|x|$ (after applying it: the iterates left
-    move by round-off) or `fn` vanishes, and at once where `active` is False (a root
+    move by round-off), `fn` vanishes, the bracket has collapsed or Newton has reached the
+    round-off floor of `fn` (a step below $10^{-9}$ of the bracket not smaller than 0.9 of
+    the previous one, as `bracketed_root`), and at once where `active` is False (a root
     that is not used: under `vmap` the loop runs until every lane has stopped, so the
     lanes of a branch not taken must not hold it). Near a double root (the fold of the
-    front) Newton converges linearly and the lane uses all `steps`. Differentiated
-    implicitly (`jax.lax.custom_root`).
+    front) Newton converges linearly, halving its step, until that floor or `steps`.
+    Differentiated implicitly (`jax.lax.custom_root`).
     """
     lo = lax.stop_gradient(lo)
     hi = lax.stop_gradient(hi)
@@ -228,8 +230,10 @@ def concave_root(
             return jax.jvp(f, (x,), (jnp.ones_like(x),))
 
         def cond(carry):
-            i, _, _, _, _, _, done = carry
+            i, _, _, _, _, _, _, done = carry
             return (i < steps) & jnp.logical_not(done)
+
+        width0 = jnp.abs(hi - lo)
 
         # f and f' of an iterate are evaluated once, at the end of the iteration that makes
         # it, and carried: every decision of the next iteration reads the same stored
@@ -237,22 +241,33 @@ def concave_root(
         # bits: near the root the sign of f in the bracket update and in the stop test
         # could disagree)
         def body(carry):
-            i, a, b, x, fx, dfx, done = carry
+            i, a, b, x, fx, dfx, prev_step, done = carry
             a_n = jnp.where(fx >= 0, x, a)
             b_n = jnp.where(fx >= 0, b, x)
             newton = x - fx / jnp.where(dfx == 0, 1.0, dfx)
             good = (dfx != 0) & jnp.isfinite(newton) & (newton >= a_n) & (newton <= b_n)
             x_new = jnp.where(good, newton, 0.5 * (a_n + b_n))
             x_new = jnp.where(fx == 0, x, x_new).astype(x.dtype)
+            # a collapsed bracket (`fn(hi) > 0` by round-off: the root is the end) leaves x
+            # where it is: stop (the loop bisected in place to the step limit)
             stop = (fx == 0) | (good & (jnp.abs(newton - x) <= eps4 * jnp.abs(x)))
+            stop = stop | (b_n <= a_n)
+            # Newton at the round-off floor of f (near a double root f' is small and f's
+            # round-off moves the iterate by more than 4 eps |x|): a step below 1e-9 of the
+            # bracket that is not smaller than 0.9 of the previous one (above the floor the
+            # steps shrink, by 1/2 an iteration or faster), as `bracketed_root`
+            step = jnp.abs(x_new - x)
+            stop = stop | (good & (step <= 1e-9 * width0) & (step >= 0.9 * prev_step))
             f_new, df_new = f_df(x_new)
             keep = lambda old, new: jnp.where(done, old, new)  # noqa: E731
             return (i + 1, keep(a, a_n), keep(b, b_n), keep(x, x_new),
                     keep(fx, f_new.astype(fx.dtype)), keep(dfx, df_new.astype(dfx.dtype)),
-                    done | stop)
+                    keep(prev_step, jnp.where(good, step, jnp.inf)), done | stop)
 
         f0, df0 = f_df(hi)
-        carry = (jnp.asarray(0), lo, hi, hi, f0, df0, jnp.broadcast_to(idle, jnp.shape(hi)))
+        inf = jnp.full_like(hi, jnp.inf)
+        carry = (jnp.asarray(0), lo, hi, hi, f0, df0, inf,
+                 jnp.broadcast_to(idle, jnp.shape(hi)))
         return while_loop(cond, body, carry)[3]
 
     return lax.custom_root(fn, hi, solve, _divide_by_slope)

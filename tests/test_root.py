@@ -213,6 +213,26 @@ def test_concave_root_near_a_double_root():
         np.testing.assert_allclose(got, want, rtol=1e-12 if eps > 1e-6 else 1e-6)
 
 
+def test_concave_root_stops_at_the_round_off_floor_and_on_a_collapsed_bracket():
+    # the fold of the front as `retract` meets it: m - h(a) with h's minimum just below m,
+    # written with cancellation (f = e - (x^2 - 2x + 1), root 1 + 1e-6): Newton halves its
+    # step down to the root's neighbourhood, then reaches the round-off of f (~1e-16, so
+    # ~1e-10 in x at f' = 2e-6) and wanders there; the loop stops at that floor instead of
+    # running to `steps`, with the root to that floor
+    e = 1e-12
+    evaluations = [0]
+    got = jax.jit(lambda: concave_root(_counted(lambda x: e - (x * x - 2.0 * x + 1.0),
+                                                evaluations), 1.0, 2.0, steps=200))()
+    assert abs(float(got) - (1.0 + 1e-6)) <= 1e-9
+    assert evaluations[0] <= 40, evaluations[0]
+    # f(hi) > 0 (the root is the end; by round-off in `retract`'s stand-ins): the bracket
+    # collapses onto hi, which is returned after one iteration
+    evaluations[0] = 0
+    got = jax.jit(lambda: concave_root(_counted(lambda x: 1.0 - x, evaluations), 0.0, 0.5,
+                                       steps=200))()
+    assert float(got) == 0.5 and evaluations[0] <= 2, evaluations[0]
+
+
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_convex_root_from_the_right_and_clipped_ends(dtype):
     # x^(3/2) (1 + x^2) = q: increasing and convex on [0, 2]; starts at the power law's

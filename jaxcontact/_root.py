@@ -119,7 +119,7 @@ def _solve(fn, lo, hi, steps, dtype):
         step = jnp.abs(x_new - x)
         zero = fx == 0
         x_new = jnp.where(zero | (resolved & jnp.logical_not(inside)), x, x_new).astype(dtype)
-        floor = inside & (step <= 1e-9 * width0) & (step >= 0.9 * prev_step)
+        floor = inside & _round_off_floor(step, prev_step, width0)
         stop = (
             zero
             | resolved
@@ -142,6 +142,13 @@ def _solve(fn, lo, hi, steps, dtype):
     nan = (jnp.full_like(mid, jnp.nan),) * 4  # no earlier state: equal to none
     carry = (jnp.asarray(0), lo, hi, x0, inf, done0, (nan, nan))
     return while_loop(cond, body, carry)[3]
+
+
+def _round_off_floor(step, prev_step, width0):
+    """Newton has reached the round-off floor of f: a step below $10^{-9}$ of the initial
+    bracket that is not smaller than 0.9 of the previous Newton step (above the floor the
+    steps shrink: quadratically, or by 1/2 an iteration near a double root)."""
+    return (step <= 1e-9 * width0) & (step >= 0.9 * prev_step)
 
 
 def _same(a, b):
@@ -257,7 +264,7 @@ def concave_root(
             # bracket that is not smaller than 0.9 of the previous one (above the floor the
             # steps shrink, by 1/2 an iteration or faster), as `bracketed_root`
             step = jnp.abs(x_new - x)
-            stop = stop | (good & (step <= 1e-9 * width0) & (step >= 0.9 * prev_step))
+            stop = stop | (good & _round_off_floor(step, prev_step, width0))
             f_new, df_new = f_df(x_new)
             keep = lambda old, new: jnp.where(done, old, new)  # noqa: E731
             return (i + 1, keep(a, a_n), keep(b, b_n), keep(x, x_new),

@@ -214,19 +214,20 @@ def test_concave_root_near_a_double_root():
 
 
 def test_concave_root_stops_at_the_round_off_floor_and_on_a_collapsed_bracket():
-    # the fold of the front as `retract` meets it: m - h(a) with h's minimum just below m,
-    # written with cancellation (f = e - (x^2 - 2x + 1), root 1 + 1e-6): Newton halves its
-    # step down to the root's neighbourhood, then reaches the round-off of f (~1e-16, so
-    # ~1e-10 in x at f' = 2e-6) and wanders there; the loop stops at that floor instead of
-    # running to `steps`, with the root to that floor
+    # the fold of the detachment front (the history model's criterion in a cell): a
+    # concave function whose maximum lies just above zero, written with cancellation
+    # (f = e - (x^2 - 2x + 1), root 1 + 1e-6): Newton halves its step down to the root's
+    # neighbourhood, then reaches the round-off of f (~1e-16, so ~1e-10 in x at
+    # f' = 2e-6) and wanders there; the loop stops at that floor instead of running to
+    # `steps`, with the root to that floor
     e = 1e-12
     evaluations = [0]
     got = jax.jit(lambda: concave_root(_counted(lambda x: e - (x * x - 2.0 * x + 1.0),
                                                 evaluations), 1.0, 2.0, steps=200))()
     assert abs(float(got) - (1.0 + 1e-6)) <= 1e-9
     assert evaluations[0] <= 40, evaluations[0]
-    # f(hi) > 0 (the root is the end; by round-off in `retract`'s stand-ins): the bracket
-    # collapses onto hi, which is returned after one iteration
+    # f(hi) > 0 (no root inside: by round-off, the root at the end): the bracket collapses
+    # onto hi, which is returned after one iteration (the loop bisected in place before)
     evaluations[0] = 0
     got = jax.jit(lambda: concave_root(_counted(lambda x: 1.0 - x, evaluations), 0.0, 0.5,
                                        steps=200))()

@@ -32,7 +32,9 @@ default relaxed as `jaxcontact fit`; contact point fitted, as for instrument fil
         [--real tests/data/...] [--out benchmarks/results/posterior.md]
 
 The per-curve records go to `--records` (JSON lines, appended as they come, so a long run
-can be followed and resumed: curves already recorded are skipped).
+can be followed and resumed: curves already recorded are skipped). `--max-draws N`: chains
+whose diagnostics fail continue in blocks of `--draws` up to N draws each
+(`fitting.sample(..., max_draws=N)`); `--only 7,18`: only these sets.
 """
 
 from __future__ import annotations
@@ -140,11 +142,13 @@ def run_synthetic(args) -> list[dict]:
     if path.exists():
         for line in path.read_text().splitlines():
             rec = json.loads(line)
-            if (rec["draws"], rec["chains"], rec.get("warmup")) == (args.draws, args.chains,
-                                                                   args.warmup):
+            if (rec["draws"], rec["chains"], rec.get("warmup"),
+                    rec.get("max_draws", rec["draws"])) == (args.draws, args.chains,
+                                                            args.warmup, args.max_draws):
                 done[rec["curve"]] = rec
+    only = _only(args)
     for i in range(args.curves):
-        if i in done:
+        if i in done or (only is not None and i not in only):
             continue
         p, data = make_set(i, args)
         with warnings.catch_warnings():
@@ -155,10 +159,12 @@ def run_synthetic(args) -> list[dict]:
             t0 = time.perf_counter()
             post = fitting.sample(res, draws=args.draws, chains=args.chains, seed=i,
                                   warmup=args.warmup, predictive=False, warn=False,
-                                  target_accept=args.target_accept)
+                                  target_accept=args.target_accept,
+                                  max_draws=args.max_draws)
         t_sample = time.perf_counter() - t0
         rec = {"curve": i, "draws": args.draws, "chains": args.chains,
-               "warmup": args.warmup, "model": args.model, "truth": p,
+               "warmup": args.warmup, "max_draws": args.max_draws,
+               "draws_run": post.settings["draws_run"], "model": args.model, "truth": p,
                "settings": {k: post.settings[k] for k in ("target_accept", "max_tree_depth")},
                "max_steps_per_draw": int(post.sample_stats["n_steps"].max()),
                "mean_steps_per_draw": float(post.sample_stats["n_steps"].mean()),
@@ -181,11 +187,17 @@ def run_synthetic(args) -> list[dict]:
         done[i] = rec
         cov = " ".join(f"{n}:{'y' if rec['params'][n]['covered'] else 'N'}" for n in NAMES)
         print(f"curve {i}: sample {t_sample:.1f} s (mcmc {post.timings['mcmc']:.1f} s), "
-              f"fit {t_fit:.1f} s, divergences {post.divergences}, "
+              f"fit {t_fit:.1f} s, draws {post.settings['draws_run']}, "
+              f"divergences {post.divergences}, "
               f"max R-hat {max(rec['params'][n]['r_hat'] for n in rec['params']):.4f}, "
               f"min ESS {min(rec['params'][n]['ess_bulk'] for n in rec['params']):.0f}; "
               f"{cov}", flush=True)
-    return [done[i] for i in range(args.curves) if i in done]
+    return [done[i] for i in range(args.curves) if i in done and (only is None or i in only)]
+
+
+def _only(args) -> set[int] | None:
+    """`--only`: the set indices to run (and to tabulate), or None for all."""
+    return {int(x) for x in args.only.split(",")} if args.only else None
 
 
 def run_timing(args) -> None:
@@ -263,6 +275,16 @@ def _sets_text(args) -> str:
             f"samples, noise {NOISE:.0%} of the force range")
 
 
+def _extension_text(recs, args) -> str:
+    if args.max_draws == args.draws:
+        return ""
+    ext = {r["curve"]: r["draws_run"] for r in recs if r.get("draws_run", args.draws) > args.draws}
+    listed = ", ".join(f"set {i}: {d}" for i, d in sorted(ext.items())) or "none"
+    return (f", continued in blocks of {args.draws} draws up to {args.max_draws} per chain "
+            f"while some parameter had R-hat > 1.01 or bulk ESS < 400 (`fitting.sample(..., "
+            f"max_draws=)`; draws per chain of the sets continued: {listed})")
+
+
 def table(recs, args, real_rows, command) -> list[str]:
     title = ("# Posterior calibration (`fitting.sample`, NUTS)" if args.model == "relaxed"
              else "# Posterior calibration, full-history model (`fitting.sample`, NUTS)")
@@ -271,8 +293,9 @@ def table(recs, args, real_rows, command) -> list[str]:
              f"    {command}", "",
              f"{len(recs)} synthetic parameter sets ({_sets_text(args)}; see the script's "
              f"docstring), {args.chains} chains x {args.draws} draws "
-             f"after {args.warmup} warm-up each. Coverage: the fraction of sets whose 90 % "
-             "credible interval (5-95 %) contains the truth (acceptance 80-97 %; with "
+             f"after {args.warmup} warm-up each{_extension_text(recs, args)}. Coverage: the "
+             "fraction of sets whose 90 % credible interval (5-95 %) contains the truth "
+             "(acceptance 80-97 %; with "
              f"{len(recs)} sets its binomial standard error at 90 % is "
              f"{100 * math.sqrt(0.09 / max(len(recs), 1)):.1f} points).", "",
              "| parameter | coverage of the 90 % interval | max R-hat | min bulk ESS | "
@@ -355,7 +378,11 @@ def main(argv=None) -> int:
     ap.add_argument("--sets", default="", help="as --time-only, these sets (e.g. 17,33,48)")
     ap.add_argument("--target-accept", type=float,
                     default=fitting._posterior.DEFAULT_TARGET_ACCEPT)
+    ap.add_argument("--max-draws", type=int, default=None,
+                    help="fitting.sample's max_draws (default: --draws, no extension)")
+    ap.add_argument("--only", default="", help="run and tabulate only these sets (e.g. 7,18)")
     args = ap.parse_args(argv)
+    args.max_draws = args.draws if args.max_draws is None else args.max_draws
     stem = "posterior" if args.model == "relaxed" else "posterior_history"
     args.records = args.records or f"benchmarks/results/{stem}_records.jsonl"
     args.out = args.out or f"benchmarks/results/{stem}.md"

@@ -466,6 +466,7 @@ def sample(
     seed: int = 0,
     target_accept: float = DEFAULT_TARGET_ACCEPT,
     max_tree_depth: int = 8,
+    max_draws: int | None = None,
     predictive: bool = True,
     warn: bool = True,
 ) -> PosteriorResult:
@@ -489,6 +490,13 @@ def sample(
       numpyro's 0.8 for the stiff likelihood near the jump-off: module docstring; raise
       it, e.g. 0.99, when divergences are reported);
       `max_tree_depth`: at most $2^d$ leapfrog steps per draw.
+    - `max_draws`: draws per chain at most (default `draws`: no extension). While some
+      parameter's $\hat R$ exceeds :data:`RHAT_LIMIT` or its bulk ESS is below
+      :data:`ESS_LIMIT`, every chain continues from its last state (the warm-up's step
+      size and mass matrix kept, no further adaptation) for another `draws` draws, as long
+      as the total stays within `max_draws`; all draws are kept and the diagnostics are
+      those of all of them (``settings["draws_run"]``, ``settings["extensions"]``). A
+      chain stuck in another mode is not cured by this: the warning stays.
     - `predictive`: also compute the posterior band of the model force
       (:attr:`PosteriorResult.predictive`). `warn`: issue :class:`PosteriorWarning`.
 
@@ -516,6 +524,8 @@ def sample(
     _check_int("warmup", warmup, 10)
     _check_int("max_tree_depth", max_tree_depth, 1)
     _check_int("seed", seed, 0)
+    max_draws = draws if max_draws is None else max_draws
+    _check_int("max_draws", max_draws, draws)
     if not (isinstance(target_accept, int | float) and 0.5 <= target_accept < 1):
         raise ValueError(f"target_accept must be in [0.5, 1); got {plain(target_accept)}")
     t_start = time.perf_counter()
@@ -572,19 +582,26 @@ def sample(
 
     t0 = time.perf_counter()
     keys = jax.random.split(jax.random.PRNGKey(seed), chains)
-    out = jax.device_get(_run_chains(ctx, jnp.asarray(inits), keys,
-                                     warmup=int(warmup), draws=int(draws),
-                                     target_accept=float(target_accept),
-                                     max_tree_depth=int(max_tree_depth)))
-    eta, diverging, num_steps, accept, energy, pot, step = (np.asarray(x) for x in out)
+    kernel = {"warmup": int(warmup), "draws": int(draws),
+              "target_accept": float(target_accept), "max_tree_depth": int(max_tree_depth)}
+    out, state = _run_chains(ctx, jnp.asarray(inits), keys, **kernel)
+    blocks = [jax.device_get(out)]
+    extensions = 0
+    # more draws while the diagnostics fail and the budget allows (module docstring)
+    while (len(blocks) + 1) * draws <= max_draws and not _diagnostics_met(_internal(
+            theta0 + np.concatenate([b[0] for b in blocks], axis=1) @ chol.T, lo, hi)):
+        out, state = _continue_chains(ctx, state, **kernel)
+        blocks.append(jax.device_get(out))
+        extensions += 1
+    eta, diverging, num_steps, accept, energy, pot, step = (
+        np.concatenate([np.asarray(b[i]) for b in blocks], axis=1) for i in range(7))
     theta = theta0 + eta @ chol.T
     extra = {"diverging": diverging, "num_steps": num_steps, "accept_prob": accept,
              "energy": energy, "potential_energy": pot}
     t_mcmc = time.perf_counter() - t0
 
     z = theta[..., :k]
-    u = np.asarray(lo) + np.asarray(hi - lo) * (1.0 / (1.0 + np.exp(-z)))
-    internal = np.concatenate([u, theta[..., k:]], axis=-1)
+    internal = _internal(theta, lo, hi)
     u_all = param.internal_host(z)
     p_all = param.to_natural_host(u_all)
     noise_names = (["noise_scale"] if n_curves == 1 else
@@ -642,6 +659,8 @@ def sample(
         band = _predictive_band(fit, u_all, seed)
     prior_desc = "default" if prior is None else (prior if isinstance(prior, str) else "custom")
     settings = {"draws": draws, "chains": chains, "warmup": warmup, "seed": seed,
+                "max_draws": max_draws, "draws_run": int(eta.shape[1]),
+                "extensions": extensions,
                 "target_accept": target_accept, "max_tree_depth": max_tree_depth,
                 "chain_method": "vectorized", "dense_mass": True,
                 "n_kept_samples": n_kept.tolist(), "prior_text": prior_desc}
@@ -720,34 +739,86 @@ def _potential_fn(ctx: _Context):
     return potential
 
 
+def _internal(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """The summary's coordinates of draws `theta = (z, ln ς)` `(..., m)`: the internal
+    $u = l + (h - l)\\,\\sigma(z)$ of the `len(lower)` parameters, then $\\ln\\varsigma$."""
+    k = len(lower)
+    z = theta[..., :k]
+    u = lower + (upper - lower) * (1.0 / (1.0 + np.exp(-z)))
+    return np.concatenate([u, theta[..., k:]], axis=-1)
+
+
+def _diagnostics_met(internal: np.ndarray) -> bool:
+    """Whether every coordinate of the draws `internal` `(chains, draws, m)` (:func:`_internal`)
+    has $\\hat R$ <= :data:`RHAT_LIMIT` and bulk ESS >= :data:`ESS_LIMIT`, as the summary
+    computes them."""
+    for j in range(internal.shape[-1]):
+        rhat, bulk, _ = diagnostics(internal[..., j])
+        if not (rhat <= RHAT_LIMIT and bulk >= ESS_LIMIT):
+            return False
+    return True
+
+
+def _kernels(ctx, init, key, *, warmup, target_accept, max_tree_depth):
+    """numpyro's NUTS kernel for the potential of `ctx`: `(state at init, sample_kernel)`.
+    The kernel's settings (warm-up length, tree depth) live in the closure that
+    `init_kernel` sets, so a continued chain calls it too (its state then unused)."""
+    from numpyro.infer.hmc import hmc
+
+    init_kernel, sample_kernel = hmc(potential_fn_gen=_potential_fn, algo="NUTS")
+    state = init_kernel(init, num_warmup=warmup,
+                        dense_mass=True, target_accept_prob=target_accept,
+                        max_tree_depth=max_tree_depth,
+                        forward_mode_differentiation=True, model_args=(ctx,),
+                        rng_key=key)
+    return state, sample_kernel
+
+
+def _scan_draws(ctx, sample_kernel, state, length):
+    """`length` NUTS transitions from `state`: `(last state, (eta, diverging, num_steps,
+    accept_prob, energy, potential_energy, step_size))` per transition."""
+
+    def step(s, _):
+        s = sample_kernel(s, model_args=(ctx,))
+        return s, (s.z, s.diverging, s.num_steps, s.accept_prob, s.energy,
+                   s.potential_energy, s.adapt_state.step_size)
+
+    return jax.lax.scan(step, state, None, length=length)
+
+
 @functools.partial(jax.jit, static_argnames=("warmup", "draws", "target_accept",
                                              "max_tree_depth"))
 def _run_chains(ctx, inits, keys, *, warmup, draws, target_accept, max_tree_depth):
     """NUTS (numpyro's kernel, dense mass matrix adapted in the warm-up from the identity,
     gradients in forward mode) from every row of `inits` (whitened), chains vectorised:
-    `(eta, diverging, num_steps, accept_prob, energy, potential_energy)`, each `(chains,
-    draws, ...)` (the warm-up dropped)."""
-    from numpyro.infer.hmc import hmc
-
-    init_kernel, sample_kernel = hmc(potential_fn_gen=_potential_fn, algo="NUTS")
+    `((eta, diverging, num_steps, accept_prob, energy, potential_energy, step_size), last
+    states)`, the first each `(chains, draws, ...)` (the warm-up dropped)."""
 
     def chain(init, key):
-        state = init_kernel(init, num_warmup=warmup,
-                            dense_mass=True, target_accept_prob=target_accept,
-                            max_tree_depth=max_tree_depth,
-                            forward_mode_differentiation=True, model_args=(ctx,),
-                            rng_key=key)
-
-        def step(s, _):
-            s = sample_kernel(s, model_args=(ctx,))
-            return s, (s.z, s.diverging, s.num_steps, s.accept_prob, s.energy,
-                       s.potential_energy, s.adapt_state.step_size)
-
+        state, sample_kernel = _kernels(ctx, init, key, warmup=warmup,
+                                        target_accept=target_accept,
+                                        max_tree_depth=max_tree_depth)
         # one scan over the warm-up and the draws (the model compiled once in the loop)
-        out = jax.lax.scan(step, state, None, length=warmup + draws)[1]
-        return jax.tree.map(lambda x: x[warmup:], out)
+        last, out = _scan_draws(ctx, sample_kernel, state, warmup + draws)
+        return jax.tree.map(lambda x: x[warmup:], out), last
 
     return jax.vmap(chain)(inits, keys)
+
+
+@functools.partial(jax.jit, static_argnames=("warmup", "draws", "target_accept",
+                                             "max_tree_depth"))
+def _continue_chains(ctx, states, *, warmup, draws, target_accept, max_tree_depth):
+    """`draws` more transitions of every chain from its last state (`_run_chains`' second
+    output; past the warm-up, so nothing is adapted any more): the same outputs."""
+
+    def chain(state):
+        _, sample_kernel = _kernels(ctx, state.z, state.rng_key, warmup=warmup,
+                                    target_accept=target_accept,
+                                    max_tree_depth=max_tree_depth)
+        last, out = _scan_draws(ctx, sample_kernel, state, draws)
+        return out, last
+
+    return jax.vmap(chain)(states)
 
 
 @jax.jit

@@ -209,6 +209,10 @@ def add_fit_arguments(parser):
                              "(default 1000)")
     parser.add_argument("--chains", type=int, default=4, metavar="K",
                         help="with --posterior: chains, vectorised (default 4)")
+    parser.add_argument("--max-draws", type=int, default=None, metavar="N",
+                        help="with --posterior: while some parameter has R-hat > 1.01 or "
+                             "bulk ESS < 400, continue the chains in blocks of --draws up "
+                             "to N draws each (default: --draws, no continuation)")
     parser.add_argument("--no-figure", action="store_true",
                         help="skip fit.png / map.png (and corner.png)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
@@ -334,6 +338,9 @@ def _check(args):
             raise UsageError(f"argument --draws: must be an integer >= 10; got {args.draws}")
         if args.chains < 1:
             raise UsageError(f"argument --chains: must be an integer >= 1; got {args.chains}")
+        if args.max_draws is not None and args.max_draws < args.draws:
+            raise UsageError(f"argument --max-draws: must be an integer >= --draws "
+                             f"({args.draws}); got {args.max_draws}")
         if args.each:
             raise UsageError("argument --posterior: not with --each (one posterior per fit; "
                              "sample the curves one by one)")
@@ -449,7 +456,7 @@ def _run_posterior(args, folder, curves, options) -> int:
                   f"{args.draws} warm-up (compiles first)", file=sys.stderr, flush=True)
         # the posterior band is drawn on fit.png only
         return fitting.sample(result, draws=args.draws, chains=args.chains, warn=False,
-                              predictive=not args.no_figure)
+                              max_draws=args.max_draws, predictive=not args.no_figure)
 
     def write(post, staging):
         fitting.write_report(post.fit, staging)

@@ -101,6 +101,51 @@ def test_step_size_adapted_per_chain_and_fixed_after_warmup(posterior):
     assert posterior.sample_stats["n_steps"].max() < 2 ** posterior.settings["max_tree_depth"]
 
 
+def test_max_draws_continues_every_chain_from_its_last_state(fit_result, posterior):
+    """`max_draws`: 2 x 150 draws have bulk ESS < 400, so the chains continue for one more
+    block of 150 (a third does not fit in 375). The first block is the run without
+    `max_draws` to the bit; the continued draws keep the warm-up's step size (no second
+    adaptation) and the acceptance statistic it was adapted for; the summary's diagnostics
+    are those of all 300 draws."""
+    assert posterior.settings["draws_run"] == DRAWS and posterior.settings["extensions"] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fitting.PosteriorWarning)
+        post = fitting.sample(fit_result, draws=DRAWS, chains=CHAINS, seed=1,
+                              predictive=False, max_draws=2 * DRAWS + DRAWS // 2)
+    assert post.settings["draws_run"] == 2 * DRAWS and post.settings["extensions"] == 1
+    assert post.draws == 2 * DRAWS and post["G0"].shape == (CHAINS, 2 * DRAWS)
+    for name in posterior.names:
+        np.testing.assert_array_equal(post[name][:, :DRAWS], posterior[name])
+    step = post.sample_stats["step_size"]
+    np.testing.assert_array_equal(step, np.repeat(posterior.sample_stats["step_size"][:, :1],
+                                                  2 * DRAWS, axis=1))
+    accept = post.sample_stats["acceptance_rate"][:, DRAWS:].mean(axis=1)
+    assert np.all(np.abs(accept - post.settings["target_accept"]) < 0.15), accept
+    # the continued draws are new draws of the same posterior: not a copy of the first
+    # block, and their means within the first block's spread
+    for name in TRUE:
+        first, more = post[name][:, :DRAWS], post[name][:, DRAWS:]
+        assert not np.array_equal(first, more)
+        assert abs(more.mean() - first.mean()) < 0.5 * first.std(), name
+    k = post.names.index("G0")
+    assert post.row("G0")["r_hat"] == diagnostics(post.internal[..., k])[0]
+
+
+@pytest.mark.slow
+def test_continued_chains_equal_one_longer_run(fit_result, posterior):
+    """A chain continued for a second block of draws is the chain run for both blocks at
+    once (the same transitions from the same state and random key): within round-off."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fitting.PosteriorWarning)
+        cont = fitting.sample(fit_result, draws=DRAWS, chains=CHAINS, seed=1,
+                              predictive=False, max_draws=2 * DRAWS)
+        once = fitting.sample(fit_result, draws=2 * DRAWS, warmup=DRAWS, chains=CHAINS,
+                              seed=1, predictive=False)
+    assert cont.settings["extensions"] == 1
+    for name in posterior.names:
+        np.testing.assert_allclose(cont[name], once[name], rtol=1e-9)
+
+
 def test_an_informative_prior_moves_the_posterior_as_gaussians_combine(fit_result):
     """A narrow prior on G0 (centre 5 % above the fit, sd 0.2 % in ln G0): the posterior
     means of all parameters move as the product of the fit's linearised Gaussian (in
@@ -161,6 +206,7 @@ def test_netcdf_groups_json_and_csv(posterior, tmp_path):
 def test_bad_arguments_name_the_argument(fit_result):
     for kw, needle in (({"draws": 0}, "draws"), ({"chains": 0}, "chains"),
                        ({"target_accept": 1.5}, "target_accept"),
+                       ({"max_draws": 100}, "max_draws must be an integer >= 1000"),
                        ({"prior": {"G9": "uniform"}}, "prior: unknown parameter"),
                        ({"prior": {"G0": (-1.0, 1.0)}}, "prior for 'G0'"),
                        ({"prior": {"G0": "wide"}}, "prior for 'G0'"),
@@ -226,6 +272,10 @@ def test_cli_posterior_writes_listed_files(tmp_path, fit_result, capsys):
                "--out", str(tmp_path / "bad")])
     assert rc == 2 and not (tmp_path / "bad").exists()
     assert "--draws" in capsys.readouterr().err
+    rc = main(["fit", *files, "--radius", str(R), "--posterior", "--draws", "50",
+               "--max-draws", "20", "--out", str(tmp_path / "bad")])
+    assert rc == 2 and not (tmp_path / "bad").exists()
+    assert "--max-draws: must be an integer >= --draws (50); got 20" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -414,8 +414,11 @@ def tabor_fn(spec, k: int):
     model (not an eager `jax.jacfwd` traced again for every curve of a map)."""
     import jax
 
+    from jaxcontact._validate import without_guards
+
     from ._spec import build_rheology
 
+    @without_guards  # the fit's values: no host callback in the finish's program
     def fn(q, radius):
         e_star = 4 * build_rheology(spec, q[:k]).glass_modulus
         return jc.tabor_parameter(radius, q[k], e_star)

@@ -61,6 +61,7 @@ __all__ = [
     "plausible",
     "times_ok",
     "unchecked",
+    "without_guards",
 ]
 
 
@@ -257,6 +258,21 @@ class unchecked:  # noqa: N801 - used like a function: `with unchecked(): ...`
     def __exit__(self, *exc):
         _UNCHECKED.reset(self._token)
         return False
+
+
+def without_guards(fn):
+    """`fn` run (and traced) with the run-time checks of `guarded` methods off, for callers
+    whose parameters are valid by construction (a fit's values lie within its bounds): its
+    compiled program then holds no host callback, so JAX's persistent compilation cache
+    can keep it and a GPU runs it without a round trip to the host. Invalid values give NaN
+    or meaningless numbers instead of an error."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with unchecked():
+            return fn(*args, **kwargs)
+
+    return wrapper
 
 
 def domain_ok(obj):

@@ -361,6 +361,29 @@ def test_batched_finish_equals_the_per_curve_finish(curves):
     assert {d["name"]: d for d in res.results[1].derived}["tau"]["status"] == "ok"
 
 
+def test_compiled_fit_programs_hold_no_host_callback(curves):
+    """JAX's persistent compilation cache (``jaxcontact fit`` keeps one) does not store a
+    program with a host callback, and a GPU stops at each one: the search's pool and the
+    finish's call of a chunk have none. (The derived quantities and Tabor's parameter built
+    rheologies whose guarded methods put a run-time check, a callback, into the finish: it
+    was compiled again in every run of the README's main job, 15-18 s.)"""
+    from fitting import _optimise as O
+
+    opts = fitting.FitOptions(radius=R, progress=False)
+    pb = O._problem([curves[0]], opts, rheology="standard", contact_point="fixed",
+                    previous=None)
+    args, kw = O._chunk_inputs([pb], [pb.param.internal_host(pb.zs[0])], 1, opts)
+    assert kw["tabor"] is not None  # Tabor's parameter is part of this finish
+    finish = O._evaluate_chunk.lower(*args, **kw).as_text()
+    n = len(pb.zs)
+    pool = O._solve_batch.lower(
+        pb.spec, O._stack([pb.param], n), O._stack([pb.data], n), pb.zs,
+        np.full(n, 20, np.int32), workers=2, rtol=1e-8, atol=1e-9, gtol=1e-8, max_steps=20,
+        optimiser="lm", keep_jacobian=True).as_text()
+    for text in (finish, pool):
+        assert "stablehlo" in text and "callback" not in text
+
+
 def _free_port() -> int:
     """A free TCP port on this machine (the coordinator of two JAX processes)."""
     import socket

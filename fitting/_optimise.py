@@ -65,6 +65,7 @@ import numpy as np
 import jaxcontact as jc
 from jaxcontact._progress import Progress
 
+from . import _programs
 from ._caller import warn_at_caller
 from ._curve import Curve
 from ._least_squares import RESULTS, Solution, run_pool, run_starts
@@ -203,6 +204,15 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
                                         dtype=np.int32), (n,))
     if n_dev == 1:
         with jax.default_device(devices[0]):  # (a part of the key of JAX's trace cache)
+            # the traced program from the on-disk cache when it is on (fitting._programs)
+            run = _programs.cached("solve_batch", _solve_batch,
+                                   (spec, params, datas, jnp.asarray(z0s),
+                                    jnp.asarray(limits)), opts,
+                                   flatten_out=_solution_fields, unflatten_out=_as_solution)
+            if run is not None:
+                if traced is not None:
+                    traced()
+                return run()
             if traced is not None:  # JAX keeps the trace for the call below
                 _solve_batch.trace(spec, params, datas, z0s, limits, **opts)
                 traced()
@@ -219,6 +229,14 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     out = run(jax.tree.map(split, params), jax.tree.map(split, datas), split(z0s),
               split(limits))
     return jax.tree.map(lambda x: x.reshape((n_dev * share,) + x.shape[2:])[:n], out)
+
+
+def _solution_fields(s: Solution) -> tuple:
+    return (s.z, s.chi2, s.result, s.steps, s.r, s.J)
+
+
+def _as_solution(fields) -> Solution:
+    return Solution(*fields)
 
 
 @functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))

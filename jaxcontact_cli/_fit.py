@@ -31,7 +31,8 @@ converge or failed (the others are written; see ``map.csv``, columns ``status``,
 and flagged (``"status": "flagged"``, ``flags``), exit 0. JAX's persistent compilation
 cache (``~/.cache/jaxcontact/jax``, or ``$JAXCONTACT_CACHE``; none when
 ``$JAXCONTACT_NO_CACHE`` is set) spares a second run the
-compile.
+compile, and its ``programs`` folder the trace of the search's program
+(:mod:`fitting._programs`: the same program, keyed by the code and the shapes).
 
 Several processes (``--coordinator HOST:PORT --num-processes N --process-id I`` in each, or
 ``--distributed`` from a cluster's environment: ``jax.distributed``) share the curves of a
@@ -232,6 +233,9 @@ def _enable_cache():
         jax.config.update("jax_compilation_cache_dir", cache)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+        from fitting import _programs
+
+        _programs.enable(pathlib.Path(cache) / "programs")
     except Exception:  # noqa: BLE001 - the cache is an optimisation only
         pass
 

@@ -282,18 +282,28 @@ def _evaluate_chunk(spec, params, us, ps, datas, radius, *, tabor):
 
 
 class _Background:
-    """The jitted `fn(*args, **kwargs)` called once in a thread, started by :meth:`start`
-    (again: nothing), so that its compilation (XLA compiles outside the GIL) overlaps
-    other work; a later call with equally shaped arguments finds it compiled. Start it
-    once the caller's own tracing is done: tracing is Python, and two traces in two
-    threads take turns on the GIL (each then takes about as long as both together:
-    `benchmarks/results/fit_each.md`, "A cold fit"). :meth:`join` (starts
-    it if need be) before that call. An error is left for that call to raise."""
+    """The jitted `fn` compiled in a thread for `(*args, **static)` (`static`: its static
+    keywords), started by :meth:`start` (again: nothing), so that its tracing and
+    compilation overlap other work (XLA compiles outside the GIL); :meth:`call` then runs
+    that executable. Start it once the caller's own tracing is done: tracing is Python,
+    and two traces in two threads take turns on the GIL (each then takes about as long as
+    both together: `benchmarks/results/fit_each.md`, "A cold fit"). Not a call of `fn`
+    in the thread, whose compilation a later call was meant to find: JAX traced and
+    compiled the finish of the README's main job again on the main thread (another
+    ~20 s of a cold run; ``fit_each.md``, "The finish compiled twice"). An error is left
+    for :meth:`call`, which then calls `fn` itself. The thread traces with the creating
+    thread's 64-bit setting (`jax.enable_x64` is local to a thread: `fit` turns it on for
+    its own duration, and the thread's trace was float32 where Python scalars entered it,
+    a program the call could not use)."""
 
-    def __init__(self, fn, *args, **kwargs):
+    def __init__(self, fn, *args, **static):
+        self._fn, self._static, self._compiled = fn, static, None
+        x64 = bool(jax.config.jax_enable_x64)
+
         def run():
             try:
-                jax.block_until_ready(fn(*args, **kwargs))
+                with jax.enable_x64(x64):
+                    self._compiled = fn.lower(*args, **static).compile()
             except Exception:  # noqa: BLE001 - the real call reports it
                 pass
 
@@ -306,6 +316,17 @@ class _Background:
     def join(self) -> None:
         self.start()
         self._thread.join()
+
+    def call(self, *args, **static):
+        """`fn(*args, **static)`, by the executable compiled in the thread when these are
+        the argument types and static keywords it was compiled for."""
+        self.join()
+        if self._compiled is not None and static == self._static:
+            try:
+                return self._compiled(*args)
+            except (TypeError, ValueError):  # other shapes or structure than compiled for
+                pass
+        return self._fn(*args, **static)
 
 
 def _r2(model, data, mask) -> float:
@@ -654,7 +675,8 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
             t_search = time.perf_counter() - t0
             timings["optimise"] += t_search
             t0 = time.perf_counter()
-            pres = _finish_chunk([problems[g] for g in part], outs, size, options, failed)
+            pres = _finish_chunk([problems[g] for g in part], outs, size, options, failed,
+                                 evaluate=model_at.call)
             for g, out, pre in zip(part, outs, pres, strict=True):
                 pb = problems[g]
                 stage = {"prepare": prepared[g], "optimise": t_search}  # the chunk's
@@ -828,7 +850,7 @@ def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions):
 
 
 def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
-                  options: FitOptions, failed=()) -> list:
+                  options: FitOptions, failed=(), *, evaluate=None) -> list:
     """What :func:`_finish` needs of each problem's best start, for a chunk of equally
     shaped `problems` at once (:func:`_evaluate_chunk`, padded to `size` problems; the
     probe's validity at every curve's largest contact radius in one call): per problem
@@ -848,7 +870,7 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
     try:
         args, kw = _chunk_inputs([problems[j] for j in ok], [out[j]["best"][1] for j in ok],
                                  size, options)
-        model, derived, mu = jax.device_get(_evaluate_chunk(*args, **kw))
+        model, derived, mu = jax.device_get((evaluate or _evaluate_chunk)(*args, **kw))
     except failed as exc:
         if len(ok) == 1:
             out[ok[0]] = exc

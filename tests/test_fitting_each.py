@@ -384,6 +384,40 @@ def test_compiled_fit_programs_hold_no_host_callback(curves):
         assert "stablehlo" in text and "callback" not in text
 
 
+def test_finish_compiled_in_the_background_serves_the_call():
+    """The finish's program is compiled in a thread during the search and the call after
+    it runs that executable: traced once, in the caller's precision. (`fit` turns 64-bit
+    types on for its own thread only; the thread traced in float32 wherever a Python
+    scalar entered, so the call traced and compiled the whole finish again: ~20 s of the
+    README's main job cold.)"""
+    import jax
+    import jax.numpy as jnp
+
+    from fitting._optimise import _Background
+
+    traces = []
+
+    @jax.jit
+    def f(x, radius):
+        traces.append(radius.dtype)
+        return x * radius
+
+    x = np.ones(3)
+    before = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", False)  # as in a process that did not switch it on
+    try:
+        with jax.enable_x64(True):
+            bg = _Background(f, x, 2.5)
+            bg.start()
+            out = bg.call(x, 2.5)
+            assert out.dtype == jnp.float64 and traces == [jnp.float64]
+            np.testing.assert_array_equal(out, 2.5 * x)
+            # other argument types than compiled for: the function itself
+            assert bg.call(np.ones(4), 2.5).shape == (4,) and len(traces) == 2
+    finally:
+        jax.config.update("jax_enable_x64", before)
+
+
 def _free_port() -> int:
     """A free TCP port on this machine (the coordinator of two JAX processes)."""
     import socket

@@ -288,13 +288,12 @@ class _Background:
     that executable. Start it once the caller's own tracing is done: tracing is Python,
     and two traces in two threads take turns on the GIL (each then takes about as long as
     both together: `benchmarks/results/fit_each.md`, "A cold fit"). Not a call of `fn`
-    in the thread, whose compilation a later call was meant to find: JAX traced and
-    compiled the finish of the README's main job again on the main thread (another
-    ~20 s of a cold run; ``fit_each.md``, "The finish compiled twice"). An error is left
-    for :meth:`call`, which then calls `fn` itself. The thread traces with the creating
-    thread's 64-bit setting (`jax.enable_x64` is local to a thread: `fit` turns it on for
-    its own duration, and the thread's trace was float32 where Python scalars entered it,
-    a program the call could not use)."""
+    in the thread, whose compilation a later call was meant to find: the call traced and
+    compiled the finish again on the main thread (``fit_each.md``, "Repeated runs"). An
+    error is left for :meth:`call`, which then calls `fn` itself. The thread traces with
+    the creating thread's 64-bit setting (`jax.enable_x64` is local to a thread: `fit`
+    turns it on for its own duration, and the thread's trace was float32 where Python
+    scalars entered it, a program the call could not use)."""
 
     def __init__(self, fn, *args, **static):
         self._fn, self._static, self._compiled = fn, static, None

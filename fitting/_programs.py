@@ -4,9 +4,9 @@ search across processes.
 JAX's persistent compilation cache (``jax_compilation_cache_dir``, which ``jaxcontact
 fit`` turns on) keeps the XLA executables of a run, but every process still traces the
 Python that produces the program before it can look one up: for the full-history model's
-search that is ~15-20 s of single-threaded Python in every run of the README's main job
-(``benchmarks/results/fit_each.md``, "A cold fit"), the largest part of a repeated
-``jaxcontact fit`` after the search itself. :func:`cached` keeps the traced and lowered
+search that is the largest part of a repeated ``jaxcontact fit`` of the README's main job
+after the search itself (``benchmarks/results/fit_each.md``, "A cold fit" and "Repeated
+runs"). :func:`cached` keeps the traced and lowered
 program instead (``jax.export``: StableHLO, serialised with ``flatbuffers``), keyed by
 everything the trace depends on: the program's name and static options, the structure,
 shapes and dtypes of its arguments, the versions of jax and jaxlib, the source of the

@@ -366,7 +366,7 @@ def test_compiled_fit_programs_hold_no_host_callback(curves):
     program with a host callback, and a GPU stops at each one: the search's pool and the
     finish's call of a chunk have none. (The derived quantities and Tabor's parameter built
     rheologies whose guarded methods put a run-time check, a callback, into the finish: it
-    was compiled again in every run of the README's main job, 15-18 s.)"""
+    was compiled again in every run of the README's main job.)"""
     from fitting import _optimise as O
 
     opts = fitting.FitOptions(radius=R, progress=False)
@@ -388,8 +388,7 @@ def test_finish_compiled_in_the_background_serves_the_call():
     """The finish's program is compiled in a thread during the search and the call after
     it runs that executable: traced once, in the caller's precision. (`fit` turns 64-bit
     types on for its own thread only; the thread traced in float32 wherever a Python
-    scalar entered, so the call traced and compiled the whole finish again: ~20 s of the
-    README's main job cold.)"""
+    scalar entered, so the call traced and compiled the whole finish again.)"""
     import jax
     import jax.numpy as jnp
 

@@ -2,6 +2,8 @@
 gives the results of the traced program to the bit, a later call loads the program
 instead of tracing it, and a damaged file or another key is traced again."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -60,16 +62,43 @@ def test_cached_program_equals_the_traced_one_and_is_loaded_later(problem, tmp_p
                            jax.tree.leaves(again), strict=True):
             np.testing.assert_array_equal(a, b)
             np.testing.assert_array_equal(a, c)
-        # a damaged file is traced again and replaced
-        monkeypatch.undo()
-        files[0].write_bytes(b"not a program")
-        _programs.enable(tmp_path)
-        fixed = _solve(problem)
-        np.testing.assert_array_equal(fixed.chi2, native.chi2)
-        assert files[0].stat().st_size > 1000
-        # another static option (the tolerance) is another key: a second file
-        _solve(problem, rtol=1e-6)
-        assert len(list(tmp_path.glob("solve_batch-*.jaxexport"))) == 2
+    finally:
+        _programs.enable(None)
+
+
+def test_damaged_file_and_other_keys_are_traced_again(tmp_path, monkeypatch):
+    """A file that cannot be read is traced again and replaced; another static option or
+    argument shape is another key (another file): no program serves a call it was not
+    traced for."""
+    traces = []
+    export = jax.export.export
+
+    def counted(*a, **k):
+        traces.append(1)
+        return export(*a, **k)
+
+    monkeypatch.setattr(jax.export, "export", counted)
+
+    @functools.partial(jax.jit, static_argnames=("power",))
+    def f(x, *, power):
+        return x**power
+
+    def call(x, power):
+        run = _programs.cached("f", f, (jnp.asarray(x),), {"power": power},
+                               flatten_out=lambda y: (y,), unflatten_out=lambda t: t[0])
+        return np.asarray(run())
+
+    try:
+        assert _programs.enable(tmp_path)
+        np.testing.assert_array_equal(call(np.arange(3.0), 2), np.arange(3.0) ** 2)
+        (path,) = tmp_path.glob("f-*.jaxexport")
+        path.write_bytes(b"not a program")
+        _programs.enable(tmp_path)  # as a new process
+        np.testing.assert_array_equal(call(np.arange(3.0), 2), np.arange(3.0) ** 2)
+        assert path.stat().st_size > 100 and len(traces) == 2
+        np.testing.assert_array_equal(call(np.arange(3.0), 3), np.arange(3.0) ** 3)
+        np.testing.assert_array_equal(call(np.arange(4.0), 2), np.arange(4.0) ** 2)
+        assert len(list(tmp_path.glob("f-*.jaxexport"))) == 3 and len(traces) == 4
     finally:
         _programs.enable(None)
 

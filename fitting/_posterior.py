@@ -586,22 +586,25 @@ def sample(
               "target_accept": float(target_accept), "max_tree_depth": int(max_tree_depth)}
     out, state = _run_chains(ctx, jnp.asarray(inits), keys, **kernel)
     blocks = [jax.device_get(out)]
-    extensions = 0
-    # more draws while the diagnostics fail and the budget allows (module docstring)
-    while (len(blocks) + 1) * draws <= max_draws and not _diagnostics_met(_internal(
-            theta0 + np.concatenate([b[0] for b in blocks], axis=1) @ chol.T, lo, hi)):
+    # more draws while the diagnostics fail and the budget allows (module docstring); the
+    # diagnostics of the last draws are the summary's
+    while True:
+        eta, diverging, num_steps, accept, energy, pot, step = (
+            np.concatenate([np.asarray(b[i]) for b in blocks], axis=1) for i in range(7))
+        theta = theta0 + eta @ chol.T
+        internal = _internal(theta, lo, hi)
+        diags = [diagnostics(internal[..., j]) for j in range(internal.shape[-1])]
+        met = all(r <= RHAT_LIMIT and b >= ESS_LIMIT for r, b, _ in diags)
+        if met or (len(blocks) + 1) * draws > max_draws:
+            break
         out, state = _continue_chains(ctx, state, **kernel)
         blocks.append(jax.device_get(out))
-        extensions += 1
-    eta, diverging, num_steps, accept, energy, pot, step = (
-        np.concatenate([np.asarray(b[i]) for b in blocks], axis=1) for i in range(7))
-    theta = theta0 + eta @ chol.T
+    extensions = len(blocks) - 1
     extra = {"diverging": diverging, "num_steps": num_steps, "accept_prob": accept,
              "energy": energy, "potential_energy": pot}
     t_mcmc = time.perf_counter() - t0
 
     z = theta[..., :k]
-    internal = _internal(theta, lo, hi)
     u_all = param.internal_host(z)
     p_all = param.to_natural_host(u_all)
     noise_names = (["noise_scale"] if n_curves == 1 else
@@ -622,7 +625,7 @@ def sample(
     bounds_all = list(zip(lo, hi, strict=True)) + [(-math.inf, math.inf)] * n_curves
     for j, name in enumerate(names):
         x = samples[name]
-        rhat, bulk, tail = diagnostics(internal[..., j])
+        rhat, bulk, tail = diags[j]
         q05, q50, q95 = np.quantile(x, [0.05, 0.5, 0.95])
         if j >= k:
             fv, fs, fst = float(rms[j - k]), math.nan, "rms residual / noise at the fit"
@@ -746,17 +749,6 @@ def _internal(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.nda
     z = theta[..., :k]
     u = lower + (upper - lower) * (1.0 / (1.0 + np.exp(-z)))
     return np.concatenate([u, theta[..., k:]], axis=-1)
-
-
-def _diagnostics_met(internal: np.ndarray) -> bool:
-    """Whether every coordinate of the draws `internal` `(chains, draws, m)` (:func:`_internal`)
-    has $\\hat R$ <= :data:`RHAT_LIMIT` and bulk ESS >= :data:`ESS_LIMIT`, as the summary
-    computes them."""
-    for j in range(internal.shape[-1]):
-        rhat, bulk, _ = diagnostics(internal[..., j])
-        if not (rhat <= RHAT_LIMIT and bulk >= ESS_LIMIT):
-            return False
-    return True
 
 
 def _kernels(ctx, init, key, *, warmup, target_accept, max_tree_depth):

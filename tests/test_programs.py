@@ -14,8 +14,6 @@ import jaxcontact as jc
 from fitting import _optimise as O
 from fitting import _programs
 
-pytest.importorskip("flatbuffers")
-
 R = 12e-6
 
 

@@ -30,6 +30,7 @@ stall the Gauss–Newton model; each iteration costs more.
 from __future__ import annotations
 
 import abc
+import dataclasses
 from collections.abc import Callable
 
 import equinox as eqx
@@ -74,7 +75,10 @@ class Solution(eqx.Module):
     **Fields:** `z` (free vectors, `(n, k)`), `chi2` ($\sum r^2$, `(n,)`), `result`
     (:class:`RESULTS` codes, `(n,)`), `steps` (iterations, the first evaluation counted,
     `(n,)`), `r`, `J` (residuals `(n, m)` and their Jacobian w.r.t. `z`, `(n, m, k)`, at
-    the end points; `None` unless asked for and the solver carries them).
+    the end points; `None` unless asked for and the solver carries them), `model` (the
+    model at the end points as the fit reports it, :class:`fitting._objective.ModelAt`
+    with a leading lane axis, from the search's own evaluation; `None` unless the solver
+    carries it: Levenberg–Marquardt with `keep_model`).
     """
 
     z: jax.Array
@@ -83,6 +87,7 @@ class Solution(eqx.Module):
     steps: jax.Array
     r: jax.Array | None = None
     J: jax.Array | None = None
+    model: object = None
 
     @property
     def converged(self):
@@ -119,6 +124,16 @@ class AbstractLeastSquaresSolver(eqx.Module):
     def last_jacobian(self, state):
         """`(r, J)` at the state's `z` if the state carries them (`J` w.r.t. `z`), else None."""
 
+    def last_model(self, state):
+        """What the fit reports of the model at the state's `z` (`fn.with_model`'s second
+        output) if the state carries it, else None."""
+        return None
+
+    def with_model(self):
+        """This solver carrying the model at its state's `z` (:meth:`last_model`), or None
+        where it cannot."""
+        return None
+
     def terminate(self, state):
         """`(done, converged)` of a state (every state carries both flags)."""
         return state.done, state.ok
@@ -139,6 +154,7 @@ class _LMState(eqx.Module):
     done: jax.Array
     ok: jax.Array
     result: jax.Array
+    model: object = None
 
 
 class LevenbergMarquardt(AbstractLeastSquaresSolver):
@@ -178,7 +194,11 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     $\lambda > 10^{10}$: :attr:`RESULTS.stagnated`; at once when the start's residuals are
     not finite: :attr:`RESULTS.nonfinite`), `geodesic`, `max_step` (largest change of a free
     coordinate in one step). The state's `steps` counts the first evaluation at the start as
-    a step; its `limit` (default `max_steps`) may be set per lane by a driver.
+    a step; its `limit` (default `max_steps`) may be set per lane by a driver. With
+    `keep_model` the state also carries what `fn.with_model(z, ctx)` returns beside the
+    residuals at its `z` (the model as a fit reports it, from the evaluation that gave the
+    residuals: no evaluation of the model after the search); `fn.model_struct(z, ctx)`
+    states its shapes.
     """
 
     rtol: float = eqx.field(static=True, default=1e-8)
@@ -186,9 +206,13 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     max_steps: int = eqx.field(static=True, default=200)
     geodesic: bool = eqx.field(static=True, default=False)
     max_step: float = eqx.field(static=True, default=float("inf"))
+    keep_model: bool = eqx.field(static=True, default=False)
 
     def _jac(self, fn, z, ctx):
-        return jacobian_fn(lambda zz: fn(zz, ctx))(z)
+        """`(r, J, model)` at `z` (`model` None without `keep_model`)."""
+        if self.keep_model:
+            return jacobian_fn(lambda zz: fn.with_model(zz, ctx), has_aux=True)(z)
+        return (*jacobian_fn(lambda zz: fn(zz, ctx))(z), None)
 
     def init(self, fn, z0, ctx):
         # no evaluation here: the state starts at chi2 = inf with J = 0, so the first step
@@ -199,10 +223,15 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         J = jnp.zeros(r0.shape + z0.shape, r0.dtype)
         one = jnp.asarray(1.0, r0.dtype)
         limit = jnp.asarray(self.max_steps)
+        model = None
+        if self.keep_model:
+            model = jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype),
+                                 fn.model_struct(z0, ctx))
         return _LMState(z=z0, r=r, J=J, chi2=jnp.asarray(jnp.inf, r0.dtype),
                         lam=5e-3 * one, mu=one, steps=jnp.asarray(0), limit=limit,
                         done=limit <= 0, ok=jnp.asarray(False),
-                        result=jnp.asarray(RESULTS.max_steps_reached, jnp.int32))
+                        result=jnp.asarray(RESULTS.max_steps_reached, jnp.int32),
+                        model=model)
 
     def step(self, fn, s, ctx):
         A = s.J.T @ s.J
@@ -228,7 +257,7 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         # no component of the free vector moves by more than `max_step` in one step
         delta = delta * jnp.minimum(1.0, self.max_step / jnp.maximum(jnp.max(jnp.abs(delta)),
                                                                      1e-300))
-        r_new, J_new = self._jac(fn, s.z + delta, ctx)
+        r_new, J_new, model_new = self._jac(fn, s.z + delta, ctx)
         chi2_new = jnp.sum(r_new * r_new)
         ok = jnp.isfinite(chi2_new) & (chi2_new <= s.chi2)
         predicted = -(2.0 * g @ delta + delta @ A @ delta)
@@ -257,6 +286,8 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
             lam=lam, mu=mu, steps=steps, limit=s.limit,
             done=converged | nonfinite | stagnated | limited,
             ok=converged, result=result,
+            model=None if s.model is None else jax.tree.map(
+                lambda new, old: jnp.where(ok, new, old), model_new, s.model),
         )
 
     def chi2(self, state):
@@ -264,6 +295,12 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
 
     def last_jacobian(self, state):
         return state.r, state.J
+
+    def last_model(self, state):
+        return state.model
+
+    def with_model(self):
+        return dataclasses.replace(self, keep_model=True)
 
 
 # ---- optax L-BFGS -------------------------------------------------------------------------
@@ -395,7 +432,8 @@ def _loop(solver, fn, state, ctx):
 def _solution(solver, s, keep_jacobian: bool) -> Solution:
     rj = solver.last_jacobian(s) if keep_jacobian else None
     r, J = rj if rj is not None else (None, None)
-    return Solution(z=s.z, chi2=solver.chi2(s), result=s.result, steps=s.steps, r=r, J=J)
+    return Solution(z=s.z, chi2=solver.chi2(s), result=s.result, steps=s.steps, r=r, J=J,
+                    model=solver.last_model(s))
 
 
 def run_starts(solver: AbstractLeastSquaresSolver, fn, z0s, ctx, *,

@@ -43,17 +43,21 @@ finite residual ($10^6$), so the optimiser steps back.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxcontact as jc
+from jaxcontact._solvers import float64_scope
 
 from ._prepare import CurveBatch
 from ._spec import ModelSpec, build_rheology, offsets, work_of_adhesion
 
-__all__ = ["predict", "effective_force", "residuals", "jacobian_fn", "internal_jacobian"]
+__all__ = ["predict", "effective_force", "residuals", "residuals_and_model", "ModelAt",
+           "jacobian_fn", "internal_jacobian", "model_solution_at"]
 
 
 def _predict_one(spec: ModelSpec, p, profile, ts, drive, depth, stiffness):
@@ -99,16 +103,38 @@ def effective_force(sol: jc.ContactSolution, data: CurveBatch) -> Float[Array, "
 def residuals(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec) -> Float[Array, " m"]:
     """Weighted force residuals at natural parameters `p`, curve-major, length `C*n`
     (padding samples give 0). Pure and jittable."""
+    return residuals_and_model(p, data, spec)[0]
+
+
+def residuals_and_model(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec):
+    r""":func:`residuals` and, from the same evaluation, what a fit reports of the model
+    (:class:`ModelAt`): the model force at the sample times and the force as fitted
+    ($F^\mathrm{eff}$), both with the force offset [N], and the contact radius [m], each
+    of shape `(C, n)` like ``data.force``."""
     sol = predict(spec, p, data)
     _, f0 = offsets(spec, p)
-    model = effective_force(sol, data) + f0
-    r = jnp.sqrt(data.weight) * (model - data.force) / data.noise
+    fitted = effective_force(sol, data) + f0
+    r = jnp.sqrt(data.weight) * (fitted - data.force) / data.noise
     r = r.ravel()
-    return jnp.where(jnp.isfinite(r), r, 1e6)
+    point = jnp.where(jnp.isfinite(sol.force), sol.force, 0.0) + f0
+    return jnp.where(jnp.isfinite(r), r, 1e6), ModelAt(point, fitted, sol.contact_radius)
 
 
-def jacobian_fn(fn):
-    """`z -> (r, J)`: `fn(z)` and its Jacobian by forward mode (the project's one helper).
+class ModelAt(NamedTuple):
+    """The model at a fit's parameters, as the finish of a fit reports it (shapes `(C, n)`
+    of ``data.force``): `force` (at the sample times, with the force offset [N]), `fitted`
+    (the force as fitted, :func:`effective_force` with the offset [N]), `contact_radius`
+    [m]."""
+
+    force: Array
+    fitted: Array
+    contact_radius: Array
+
+
+def jacobian_fn(fn, *, has_aux: bool = False):
+    """`z -> (r, J)`: `fn(z)` and its Jacobian by forward mode (the project's one helper);
+    with `has_aux`, `fn(z)` returns `(r, aux)` and the result is `(r, J, aux)` (`aux` from
+    the same evaluation, not differentiated).
 
     `jax.jacfwd` pushes every free direction through the model at once (a vmapped JVP);
     the residuals come back as the auxiliary output of the same pass. On both models it
@@ -118,11 +144,11 @@ def jacobian_fn(fn):
 
     def fn_jac(z):
         def both(z):
-            r = fn(z)
-            return r, r
+            out = fn(z)
+            return (out[0] if has_aux else out), out
 
-        J, r = jax.jacfwd(both, has_aux=True)(z)
-        return r, J
+        J, out = jax.jacfwd(both, has_aux=True)(z)
+        return (out[0], J, out[1]) if has_aux else (out, J)
 
     return fn_jac
 
@@ -137,3 +163,15 @@ def internal_jacobian(spec: ModelSpec, param, u, data: CurveBatch):
         return residuals(param.to_natural(u.at[idx].set(uf)), data, spec)
 
     return jacobian_fn(fn)(u[idx])
+
+
+@float64_scope
+def model_solution_at(u, spec: ModelSpec, param, data: CurveBatch) -> jc.ContactSolution:
+    """The forward model's batched `ContactSolution` at internal coordinates `u` of `param`
+    (:attr:`fitting.FitResult.model_solution`; numpy leaves)."""
+    return jax.device_get(_model_solution_at(spec, param, jnp.asarray(u), data))
+
+
+@eqx.filter_jit
+def _model_solution_at(spec, param, u, data):
+    return predict(spec, param.to_natural(u), data)

@@ -69,7 +69,7 @@ from . import _programs
 from ._caller import warn_at_caller
 from ._curve import Curve
 from ._least_squares import RESULTS, Solution, run_pool, run_starts
-from ._objective import effective_force, internal_jacobian, predict, residuals
+from ._objective import ModelAt, internal_jacobian, residuals, residuals_and_model
 from ._options import (
     SEARCH_BYTES_PER_RESIDUAL,
     SINGLE,
@@ -95,7 +95,6 @@ from ._spec import (
     ModelSpec,
     make_spec,
     normalise_names,
-    offsets,
     parameter_info,
     rheology_kind,
     rheology_name,
@@ -127,12 +126,25 @@ def _fn(spec: ModelSpec):
         param, data = ctx
         return residuals(param.natural(z), data, spec)
 
+    def with_model(z, ctx):  # the residuals and the model as the fit reports it
+        param, data = ctx
+        return residuals_and_model(param.natural(z), data, spec)
+
+    def dtype(z, data):
+        return jnp.result_type(data.force, data.weight, data.noise, z, float)
+
     def residual_struct(z, ctx):  # without tracing the model (`residuals`: C*n, flat)
         _, data = ctx
-        return jax.ShapeDtypeStruct((math.prod(jnp.shape(data.force)),), jnp.result_type(
-            data.force, data.weight, data.noise, z, float))
+        return jax.ShapeDtypeStruct((math.prod(jnp.shape(data.force)),), dtype(z, data))
 
+    def model_struct(z, ctx):  # the same for `with_model`'s `ModelAt`: each like the data
+        _, data = ctx
+        one = jax.ShapeDtypeStruct(jnp.shape(data.force), dtype(z, data))
+        return ModelAt(one, one, one)
+
+    fn.with_model = with_model
     fn.residual_struct = residual_struct
+    fn.model_struct = model_struct
     return fn
 
 
@@ -232,17 +244,21 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
 
 
 def _solution_fields(s: Solution) -> tuple:
-    return (s.z, s.chi2, s.result, s.steps, s.r, s.J)
+    m = (None,) * len(ModelAt._fields) if s.model is None else tuple(s.model)
+    return (s.z, s.chi2, s.result, s.steps, s.r, s.J, *m)
 
 
 def _as_solution(fields) -> Solution:
-    return Solution(*fields)
+    m = fields[6:]
+    return Solution(*fields[:6], model=None if m[0] is None else ModelAt(*m))
 
 
 @functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))
 def _solve_batch(spec, params, datas, z0s, limits, *, workers, rtol, atol, gtol, max_steps,
                  optimiser, keep_jacobian):
     solver = _solver(optimiser, rtol, atol, gtol, max_steps)
+    if keep_jacobian:  # and the model at the end points, where the solver can carry it
+        solver = solver.with_model() or solver
     return run_pool(solver, _fn(spec), z0s, (params, datas), workers, limits=limits,
                     keep_jacobian=keep_jacobian)
 
@@ -254,27 +270,22 @@ def _pmapped_pool(spec, devices, opts):
                     devices=list(devices))
 
 
-@jax.jit
-def _model_at(spec, param, u, data):
-    """At internal coordinates `u`: the model solution, the model force at the sample times
-    and the force as fitted (jump-off resolved inside its sample interval), with the force
-    offset."""
-    p = param.to_natural(u)
-    sol = predict(spec, p, data)
-    _, f0 = offsets(spec, p)
-    point = jnp.where(jnp.isfinite(sol.force), sol.force, 0.0) + f0
-    return sol, point, effective_force(sol, data) + f0
+def _model_at(spec, param, u, data) -> ModelAt:
+    """The model at internal coordinates `u` as the fit reports it (:class:`ModelAt`)."""
+    return residuals_and_model(param.to_natural(u), data, spec)[1]
 
 
-@functools.partial(jax.jit, static_argnames=("tabor",))
-def _evaluate_chunk(spec, params, us, ps, datas, radius, *, tabor):
+@functools.partial(jax.jit, static_argnames=("tabor", "model"))
+def _evaluate_chunk(spec, params, us, ps, datas, radius, *, tabor, model=True):
     """The finish's device work of a chunk in one compiled call, vmapped over its problems
-    (leading axis of `params`, `us` [internal], `ps` [natural], `datas`): the model at the
-    optimum (:func:`_model_at`: solution, model force, force as fitted), the derived
+    (leading axis of `params`, `us` [internal], `ps` [natural], `datas`): with `model`
+    the model at the optimum (:func:`_model_at`; without, `None`: the search's solver
+    carried it, :attr:`Solution.model`), the derived
     quantities with their Jacobian (:func:`fitting._uncertainty.derived_fn`) and, with
     `tabor` (the index of the work of adhesion; `None`: not computed), Tabor's parameter at
     `radius` [m] with its gradient (:func:`fitting._quality.tabor_fn`)."""
-    model = jax.vmap(_model_at, in_axes=(None, 0, 0, 0))(spec, params, us, datas)
+    model = jax.vmap(_model_at, in_axes=(None, 0, 0, 0))(spec, params, us, datas) \
+        if model else None
     derived = jax.vmap(derived_fn(spec)[1])(ps)
     mu = None if tabor is None else jax.vmap(tabor_fn(spec, tabor), in_axes=(0, None))(
         ps, radius)
@@ -610,10 +621,12 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
        (:func:`_local_search`), each one call of :func:`solve_batch` on
        ``batch.lanes(...)`` lanes over ``batch.devices``.
     3. **Finish** each problem's best start: the device work of a chunk in one compiled
-       call (:func:`_finish_chunk`: the model at the optimum, the derived quantities and
-       Tabor's parameter with their gradients, vmapped over the chunk's problems, padded
-       to the chunk size), then per problem on the host (:func:`_finish`: uncertainty,
-       $R^2$, warnings, the :class:`FitResult`).
+       call (:func:`_finish_chunk`: the derived quantities and Tabor's parameter with
+       their gradients, vmapped over the chunk's problems, padded to the chunk size; the
+       model at the optimum comes with the search's solution where its solver carries it,
+       :attr:`fitting.Solution.model`, else it is evaluated in the same call), then per
+       problem on the host (:func:`_finish`: uncertainty, $R^2$, warnings, the
+       :class:`FitResult`).
 
     `show(message)`: the stages of each problem (`None`: silent); `progress(stage, done)`:
     after each chunk. `warn`: issue the last model's warnings (the chain's earlier steps
@@ -662,7 +675,8 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
                                * int(np.size(pb0.data.ts)))
         # the finish's device work compiles during the search (started once the search's
         # program is traced)
-        args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options)
+        args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options,
+                                 model=not _carries_model(options))
         model_at = _Background(_evaluate_chunk, *args, **kw)
         for c0 in range(0, len(idx), size):
             part = idx[c0:c0 + size]
@@ -831,10 +845,11 @@ def _best_point(pb: _Problem, out: Solution):
     return best, u, r, J
 
 
-def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions):
+def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions, *,
+                  model: bool):
     """Arguments and keywords of :func:`_evaluate_chunk` for `problems` at internal
     coordinates `us`, padded to `size` problems (the last one repeated): one compilation
-    serves every chunk."""
+    serves every chunk. `model`: evaluate the model too (not carried by the search)."""
     fill = padded_indices(len(problems), size).tolist()
     profile = options.probe
     radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
@@ -845,7 +860,7 @@ def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions):
             jnp.asarray(ps), _stack([problems[j].data for j in fill], 1),
             0.0 if radius is None else radius)
     tabor = pb0.names.index("work_of_adhesion") if radius is not None else None
-    return args, {"tabor": tabor}
+    return args, {"tabor": tabor, "model": model}
 
 
 def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
@@ -866,9 +881,11 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
             out[j] = exc
     if not ok:
         return out
+    # the model at each best start: carried by the search's solver, else evaluated here
+    carried = all(outs[j].model is not None for j in ok)
     try:
         args, kw = _chunk_inputs([problems[j] for j in ok], [out[j]["best"][1] for j in ok],
-                                 size, options)
+                                 size, options, model=not carried)
         model, derived, mu = jax.device_get((evaluate or _evaluate_chunk)(*args, **kw))
     except failed as exc:
         if len(ok) == 1:
@@ -879,15 +896,20 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
             out[j] = one
         return out
     profile = options.probe
+    if carried:
+        models = [ModelAt(*(np.asarray(x[out[j]["best"][0]]) for x in outs[j].model))
+                  for j in ok]
+    else:
+        models = [ModelAt(*(np.asarray(x[i]) for x in model)) for i in range(len(ok))]
     a_max = []
-    for i, j in enumerate(ok):
+    for m, j in zip(models, ok, strict=True):
         valid = np.asarray(problems[j].data.valid) > 0
-        radius = np.asarray(model[0].contact_radius[i])
-        a_max.append(float(np.nanmax(np.where(valid, radius, 0.0))))
+        a_max.append(float(np.nanmax(np.where(valid, m.contact_radius, 0.0))))
     check = jax.device_get(jc.profile_validity(profile, np.asarray(a_max)))
+    radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
     for i, j in enumerate(ok):
         out[j].update(
-            model=jax.tree.map(lambda x, i=i: x[i], model),
+            model=models[i], radius=radius,
             evaluated=((derived[0][i], derived[1][i]),
                        None if mu is None else (mu[0][i], mu[1][i])),
             validity=(a_max[i], bool(check.valid[i]), float(check.fraction[i]),
@@ -908,7 +930,7 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
     show(f"search: chi2 of the best starts {', '.join(f'{chi2_all[i]:.6g}' for i in order[:4])}"
          f"; {RESULTS.describe(out.result[best])}, {int(steps_all[best])} steps "
          f"({len(chi2_all)} starts, {int(np.sum(steps_all))} steps in all)")
-    sol, model_force, fitted_force = pre["model"]
+    model_force, fitted_force, radius_model = pre["model"]
 
     t0 = time.perf_counter()
     p = param.to_natural_host(u)
@@ -917,8 +939,6 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
                        weights=np.asarray(data.weight).ravel(), no_detachment=no_jump,
                        warn=warn)
     valid = np.asarray(data.valid) > 0
-    model_force = np.asarray(model_force)
-    radius_model = np.asarray(sol.contact_radius)
     in_contact = valid & ((np.asarray(data.contact) > 0) | (np.nan_to_num(radius_model) > 0))
     k = int(sum(1 for i in param.free if not unc.status[i].startswith("at ")))
     n = data.n_measured
@@ -946,10 +966,9 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
         r_squared_contact=_r2(model_force, data, in_contact),
         aic=ll + 2 * k, bic=ll + k * math.log(n), converged=bool(ok_all[best]),
         start_losses=chi2_all,
-        spec=spec, data=data, curves=curves, profile=profile,
-        radius=float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None,
-        model_solution=sol, model_force=model_force,
-        fitted_force=np.asarray(fitted_force), in_contact=in_contact,
+        spec=spec, data=data, curves=curves, profile=profile, radius=pre["radius"],
+        model_at=(u, spec, param, data), model_force=model_force,
+        model_contact_radius=radius_model, fitted_force=fitted_force, in_contact=in_contact,
         parameterisation=param, optimiser=options.optimiser, start_steps=steps_all,
         warnings=msgs, timings=timings,
         search={"n_starts": options.n_starts, "screen": options.screen,
@@ -965,6 +984,12 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
     show(f"done: chi2_red = {result.reduced_chi2:.4g}, R^2 = {result.r_squared:.5f}, "
          f"R^2 in contact = {result.r_squared_contact:.5f}")
     return result
+
+
+def _carries_model(options: FitOptions) -> bool:
+    """Whether the search's solver carries the model at its end points
+    (:attr:`fitting.Solution.model`), so that the finish need not evaluate it."""
+    return make_solver(options.optimiser).with_model() is not None
 
 
 def _sort_arms(spec, param, u, J):

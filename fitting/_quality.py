@@ -75,7 +75,7 @@ from ._curve import DataError
 from ._prepare import SEGMENTS, noise_level
 from ._preprocess import _detect_index
 from ._spec import rheology_kind
-from ._uncertainty import derived_quantities
+from ._uncertainty import delta_method, derived_quantities
 
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
            "segment_quality", "contact_outside", "convergence", "check_contact_signal",
@@ -299,7 +299,7 @@ def assess(result, *, max_steps: int | None = None, evaluated=None) -> list[str]
     if result.spec.contact_offset and "contact_offset" in result.names:
         msgs = contact_outside(data.indentation, data.force, result.model_force, data.noise,
                                data.valid, data.segment,
-                               np.asarray(result.model_solution.contact_radius),
+                               np.asarray(result.model_contact_radius),
                                float(result["contact_offset"]))
         if msgs:
             flags["contact_outside_data"] = "; ".join(msgs)
@@ -362,16 +362,9 @@ def tabor_entry(spec, p, covariance, status, radius, names, *, evaluated=None
                 "of curvature (sphere or paraboloid only)"}
     value, grad = tabor_fn(spec, k)(np.asarray(p, float), float(radius)) \
         if evaluated is None else evaluated
-    value, grad, radius = float(value), np.asarray(grad), float(radius)
-    used = [j for j in range(len(p)) if grad[j] != 0 and status[j] != "fixed"]
-    ok = all(status[j] == "ok" for j in used)
-    cov = np.asarray(covariance, dtype=float)
-    if ok and used:
-        c = cov[np.ix_(used, used)]
-        var = float(grad[used] @ c @ grad[used]) if np.all(np.isfinite(c)) else math.nan
-        se = math.sqrt(var) if var >= 0 else math.nan
-    else:
-        se = 0.0 if ok else math.nan
+    value, radius = float(value), float(radius)
+    stderr, ok = delta_method(grad, covariance, status)
+    se, ok = float(stderr[0]), bool(ok[0])
     return {"name": "tabor_mu", "unit": "1", "value": value, "stderr": se,
             "status": "ok" if ok and math.isfinite(se) else "not determined",
             "definition": definition + f", R = {radius:g} m"}

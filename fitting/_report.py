@@ -175,7 +175,7 @@ def write_samples(result, path) -> pathlib.Path:
     seg = np.asarray(data.segment)
     fm = np.asarray(result.model_force)
     res = result.normalised_residuals
-    a = np.asarray(result.model_solution.contact_radius)
+    a = np.asarray(result.model_contact_radius)
     weight = np.asarray(data.weight)
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -51,11 +52,15 @@ class FitResult:
     `seed`; with the data they give the same optimum again).
 
     **Data and model:** `spec`, `data` (the `CurveBatch` fitted), `curves`, `profile`,
-    `radius` (of a parabola or sphere), `model_solution` (batched `ContactSolution` at the optimum),
-    `model_force` (the model's force at the sample times [N], force offset included; $R^2$
-    uses it), `fitted_force` (the same with the jump-off resolved inside its sample
-    interval, as the residuals use it; :mod:`fitting._objective`), `in_contact` (the samples
-    counted by `r_squared_contact`), `parameterisation`, `warnings`, `timings` [s].
+    `radius` (of a parabola or sphere), `model_force` (the model's force at the sample
+    times [N], force offset included; $R^2$ uses it), `fitted_force` (the same with the
+    jump-off resolved inside its sample interval, as the residuals use it;
+    :mod:`fitting._objective`), `model_contact_radius` (the model's contact radius at the
+    sample times [m]; these three of shape `(curves, samples)`, from the search's own
+    evaluation at the optimum), `model_solution` (the model's batched `ContactSolution` at
+    the optimum, every field of the forward model: evaluated and compiled on first access,
+    not by the fit), `in_contact` (the samples counted by `r_squared_contact`),
+    `parameterisation`, `warnings`, `timings` [s].
 
     **Honesty** (:mod:`fitting._quality`): `r_squared_unweighted` ($R^2$ over the kept
     samples, each once), `segments` (a :class:`fitting._quality.SegmentQuality` per
@@ -95,7 +100,8 @@ class FitResult:
     curves: list = field(default_factory=list)
     profile: object = None
     radius: float | None = None
-    model_solution: object = None
+    #: `(u, spec, param, data)`: where :attr:`model_solution` evaluates the model
+    model_at: tuple | None = field(default=None, repr=False)
     model_force: np.ndarray | None = None
     fitted_force: np.ndarray | None = None
     in_contact: np.ndarray | None = None
@@ -112,6 +118,20 @@ class FitResult:
     stderr_scale: float = float("nan")
     derived: list = field(default_factory=list)
     search: dict = field(default_factory=dict)
+    model_contact_radius: np.ndarray | None = None
+
+    @functools.cached_property
+    def model_solution(self):
+        """The forward model's batched `ContactSolution` at the optimum (leading axis: the
+        curves; numpy leaves), evaluated on first access (one compilation of the model;
+        a fit itself reports the forces and the contact radius from its search's own
+        evaluation: `model_force`, `fitted_force`, `model_contact_radius`). `None` when
+        the fit holds no model (`model_at` None)."""
+        if self.model_at is None:
+            return None
+        from ._objective import model_solution_at
+
+        return model_solution_at(*self.model_at)
 
     def as_dict(self) -> dict[str, float]:
         """Parameter values by short name."""

@@ -43,7 +43,7 @@ import numpy as np
 from ._caller import warn_at_caller
 
 __all__ = ["IdentifiabilityWarning", "ModelValidityWarning", "Uncertainty", "gauss_newton",
-           "derived_quantities", "POISSON"]
+           "derived_quantities", "delta_method", "POISSON"]
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -212,29 +212,43 @@ def derived_quantities(spec, p, covariance, status, *, evaluated=None) -> list[d
     a parameter it depends on is not determined or at a bound), ``status`` ("ok" or "not
     determined"), ``definition``.
     """
-    from ._spec import parameter_info
-
-    names = [n for n, _, _ in parameter_info(spec)]
     rows, fn = derived_fn(spec)
     values, grad = fn(np.asarray(p, dtype=float)) if evaluated is None else evaluated
-    values, grad = np.asarray(values), np.asarray(grad)
-    cov = np.asarray(covariance, dtype=float)
+    values = np.asarray(values)
+    stderr, ok = delta_method(grad, covariance, status)
     out = []
     for i, (name, unit, definition) in enumerate(rows):
-        g = grad[i]
-        used = [j for j in range(len(names)) if g[j] != 0 and status[j] != "fixed"]
-        ok = all(status[j] == "ok" for j in used)
-        if ok and used:
-            c = cov[np.ix_(used, used)]
-            var = float(g[used] @ c @ g[used]) if np.all(np.isfinite(c)) else math.nan
-            se = math.sqrt(var) if var >= 0 else math.nan
-        else:
-            se = 0.0 if ok else math.nan  # every parameter it depends on fixed: exact
+        se = float(stderr[i])
         out.append({"name": name, "unit": unit, "value": float(values[i]), "stderr": se,
-                    "status": "ok" if ok and math.isfinite(se) else "not determined",
+                    "status": "ok" if ok[i] and math.isfinite(se) else "not determined",
                     "definition": definition + (" (E = 2(1 + nu) G, nu = 0.5)"
                                                 if name.startswith("E") else "")})
     return out
+
+
+def delta_method(grad, covariance, status) -> tuple[np.ndarray, np.ndarray]:
+    r"""Standard errors of quantities with gradients `grad` `(q, p)` with respect to the
+    natural parameters (`p`: those of `covariance` `(p, p)` and `status`), by the delta
+    method $\sigma_f = \sqrt{\nabla f^\top C\,\nabla f}$ over the parameters each quantity
+    depends on (a nonzero gradient) that are not fixed: `(stderr (q,), ok (q,))`. `ok`:
+    every such parameter has status "ok"; otherwise the error is NaN. A quantity of fixed
+    parameters only is exact (error 0); NaN where the covariance block it needs is not
+    finite. The one home of the derived quantities' and Tabor's parameter's errors."""
+    grad = np.atleast_2d(np.asarray(grad, dtype=float))
+    cov = np.asarray(covariance, dtype=float)
+    fixed = np.array([st == "fixed" for st in status], dtype=bool)
+    good = np.array([st == "ok" for st in status], dtype=bool)
+    used = (grad != 0) & ~fixed
+    ok = np.all(good | ~used, axis=1)
+    finite = np.isfinite(cov)
+    # every covariance entry between two used parameters finite
+    block = ~np.any(used[:, :, None] & used[:, None, :] & ~finite, axis=(1, 2))
+    g = np.where(used, grad, 0.0)
+    var = np.sum((g @ np.where(finite, cov, 0.0)) * g, axis=1)
+    with np.errstate(invalid="ignore"):
+        se = np.where(block, np.sqrt(np.where(var >= 0, var, np.nan)), np.nan)
+    se = np.where(np.any(used, axis=1), se, 0.0)
+    return np.where(ok, se, np.nan), ok
 
 
 @functools.lru_cache(maxsize=16)

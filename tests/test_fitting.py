@@ -222,6 +222,9 @@ def test_recovery_noisy_within_standard_errors(noisy_fit):
 def test_lbfgs_reaches_the_lm_optimum(noisy, noisy_fit):
     lb = _fit(noisy, optimiser="lbfgs")
     assert lb.optimiser == "lbfgs" and noisy_fit.optimiser == "lm"
+    # L-BFGS carries no model: the finish evaluates it (the same quantities as the search's)
+    np.testing.assert_allclose(lb.model_contact_radius, lb.model_solution.contact_radius,
+                               rtol=1e-9, atol=1e-12 * R)
     assert lb.converged
     # the same optimum, far inside the statistical uncertainty (L-BFGS may stop a little
     # early at a kink of the piecewise-smooth loss, where a sample interval begins)
@@ -261,6 +264,30 @@ def test_reused_jacobian_matches_a_fresh_one(noisy_fit):
     np.testing.assert_allclose(res.stderr, fresh.stderr, rtol=1e-5)
     np.testing.assert_allclose(res.correlation, fresh.correlation, rtol=1e-5, atol=1e-8)
     assert res.reduced_chi2 == pytest.approx(fresh.reduced_chi2, rel=1e-9)
+
+
+def test_delta_method_errors_and_statuses():
+    """The derived quantities' and Tabor's errors (one function): sqrt(g C g) over the
+    parameters a quantity depends on, by hand on a small covariance."""
+    from fitting._uncertainty import delta_method
+
+    cov = np.array([[4.0, 1.0, np.nan], [1.0, 9.0, np.nan], [np.nan, np.nan, np.nan]])
+    status = ["ok", "ok", "not determined"]
+    grad = np.array([[1.0, 2.0, 0.0],  # 1*4*1 + 2*(1*1*2) + 2*9*2 = 44
+                     [0.0, 0.0, 3.0],  # depends on a parameter not determined
+                     [0.0, 0.0, 0.0]])  # depends on nothing: exact
+    se, ok = delta_method(grad, cov, status)
+    assert se[0] == pytest.approx(np.sqrt(44.0), rel=1e-15) and ok[0]
+    assert np.isnan(se[1]) and not ok[1]
+    assert se[2] == 0.0 and ok[2]
+    # a fixed parameter contributes nothing, whatever its gradient
+    se, ok = delta_method([[1.0, 2.0, 5.0]], cov, ["ok", "ok", "fixed"])
+    assert se[0] == pytest.approx(np.sqrt(44.0), rel=1e-15) and ok[0]
+    # a covariance entry the quantity needs is not finite: no error (its statuses are ok)
+    bad = cov.copy()
+    bad[0, 1] = bad[1, 0] = np.inf
+    se, ok = delta_method(grad[:1], bad, status)
+    assert np.isnan(se[0]) and ok[0]
 
 
 def test_stderr_against_monte_carlo():
@@ -873,8 +900,8 @@ def test_solve_batch_calls_traced_once_after_its_only_trace(monkeypatch):
     kw = dict(workers=2, max_steps=7, keep_jacobian=True)
     _optimise._solve_batch.clear_cache()
     traces, order = [], []
-    real = _optimise.residuals
-    monkeypatch.setattr(_optimise, "residuals",
+    real = _optimise.residuals_and_model  # what the pool evaluates (keep_jacobian)
+    monkeypatch.setattr(_optimise, "residuals_and_model",
                         lambda *a: (traces.append(1), real(*a))[1])
     got = fitting.solve_batch(pb.spec, params, datas, z0s, traced=lambda: order.append(
         len(traces)), **kw)

@@ -372,7 +372,9 @@ def test_compiled_fit_programs_hold_no_host_callback(curves):
     opts = fitting.FitOptions(radius=R, progress=False)
     pb = O._problem([curves[0]], opts, rheology="standard", contact_point="fixed",
                     previous=None)
-    args, kw = O._chunk_inputs([pb], [pb.param.internal_host(pb.zs[0])], 1, opts)
+    # with the model (the finish evaluates it where the search's solver does not carry it)
+    args, kw = O._chunk_inputs([pb], [pb.param.internal_host(pb.zs[0])], 1, opts,
+                               model=True)
     assert kw["tabor"] is not None  # Tabor's parameter is part of this finish
     finish = O._evaluate_chunk.lower(*args, **kw).as_text()
     n = len(pb.zs)
@@ -382,6 +384,30 @@ def test_compiled_fit_programs_hold_no_host_callback(curves):
         optimiser="lm", keep_jacobian=True).as_text()
     for text in (finish, pool):
         assert "stablehlo" in text and "callback" not in text
+
+
+def test_the_reported_model_is_the_searchs_own_evaluation(each):
+    """The forces and contact radius a fit reports come from the search's evaluation at its
+    optimum (Levenberg-Marquardt carries them; the finish does not compile or evaluate the
+    model again): the reported fitted force gives the reported chi2, and the full model
+    solution, evaluated anew on first access, agrees with them to round-off."""
+    from fitting import _optimise as O
+
+    opts = fitting.FitOptions(radius=R, progress=False)
+    assert O._carries_model(opts) and not O._carries_model(opts.replace(optimiser="lbfgs"))
+    done = [r for r in each.results if r is not None]
+    assert done
+    for r in done:
+        d = r.data
+        res = np.sqrt(d.weight) * (r.fitted_force - d.force) / d.noise
+        assert np.sum(res * res) == pytest.approx(r.chi2, rel=1e-12)
+        sol = r.model_solution  # the forward model at the optimum, evaluated on access
+        assert r.model_solution is sol  # once
+        np.testing.assert_allclose(r.model_contact_radius, sol.contact_radius, rtol=1e-9,
+                                   atol=1e-12 * R)
+        force = np.where(np.isfinite(sol.force), sol.force, 0.0)
+        np.testing.assert_allclose(r.model_force, force, rtol=1e-9,
+                                   atol=1e-12 * np.max(np.abs(force)))
 
 
 def test_finish_compiled_in_the_background_serves_the_call():

@@ -89,7 +89,13 @@ from ._prepare import (
     select_fit_segments,
     stack_batches,
 )
-from ._quality import assess, check_contact_signal, r_squared, tabor_fn
+from ._quality import (
+    assess,
+    check_contact_signal,
+    r_squared_rows,
+    segment_quality_rows,
+    tabor_fn,
+)
 from ._result import FitResult, ModelChoice
 from ._spec import (
     ModelSpec,
@@ -337,11 +343,6 @@ class _Background:
             except (TypeError, ValueError):  # other shapes or structure than compiled for
                 pass
         return self._fn(*args, **static)
-
-
-def _r2(model, data, mask) -> float:
-    """$R^2$ over the masked samples, each weighted by the measured samples it stands for."""
-    return r_squared(model, data.force, data.weight, mask)
 
 
 @keyword_signature(FitOptions)
@@ -907,14 +908,46 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
         a_max.append(float(np.nanmax(np.where(valid, m.contact_radius, 0.0))))
     check = jax.device_get(jc.profile_validity(profile, np.asarray(a_max)))
     radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
+    quality = _chunk_quality([problems[j].data for j in ok], models)
     for i, j in enumerate(ok):
         out[j].update(
-            model=models[i], radius=radius,
+            model=models[i], radius=radius, quality=quality[i],
             evaluated=((derived[0][i], derived[1][i]),
                        None if mu is None else (mu[0][i], mu[1][i])),
             validity=(a_max[i], bool(check.valid[i]), float(check.fraction[i]),
                       float(check.limit), check.reason, type(profile).__name__))
     return out
+
+
+def _chunk_quality(datas: list, models: list[ModelAt]) -> list[dict]:
+    r"""The quality numbers of a chunk's fits at once (one set of array operations for all):
+    per fit $R^2$ over every fitted sample and over those in contact (the data's contact, or
+    a model contact radius > 0: `in_contact`), both weighted by the measured samples each
+    stands for, $R^2$ of the kept samples each once (`r_squared_unweighted`) and the quality
+    of each segment (:func:`fitting._quality.segment_quality_rows`)."""
+    def stack(xs):
+        return np.stack([np.asarray(x) for x in xs])
+
+    force, noise, weight = (stack([getattr(d, k) for d in datas])
+                            for k in ("force", "noise", "weight"))
+    valid, contact, segment = (stack([getattr(d, k) for d in datas])
+                               for k in ("valid", "contact", "segment"))
+    model, fitted, radius = (stack([getattr(m, k) for m in models])
+                             for k in ("force", "fitted", "contact_radius"))
+    valid = valid > 0
+    in_contact = valid & ((contact > 0) | (np.nan_to_num(radius) > 0))
+    rows = len(datas)
+
+    def flat(x):
+        return np.reshape(x, (rows, -1))
+
+    r2 = r_squared_rows(flat(model), flat(force), flat(weight), flat(valid))
+    r2c = r_squared_rows(flat(model), flat(force), flat(weight), flat(in_contact))
+    r2u = r_squared_rows(flat(model), flat(force), None, flat(valid))
+    segments = segment_quality_rows(force, fitted, model, noise, weight, valid, segment)
+    return [{"r_squared": float(r2[i]), "r_squared_contact": float(r2c[i]),
+             "r_squared_unweighted": float(r2u[i]), "segments": segments[i],
+             "in_contact": in_contact[i]} for i in range(rows)]
 
 
 def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show, warn,
@@ -938,8 +971,7 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
     unc = gauss_newton(param, u, r, J, names, n_data=data.n_measured,
                        weights=np.asarray(data.weight).ravel(), no_detachment=no_jump,
                        warn=warn)
-    valid = np.asarray(data.valid) > 0
-    in_contact = valid & ((np.asarray(data.contact) > 0) | (np.nan_to_num(radius_model) > 0))
+    quality = pre["quality"]
     k = int(sum(1 for i in param.free if not unc.status[i].startswith("at ")))
     n = data.n_measured
     chi2 = unc.chi2
@@ -962,13 +994,13 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
         values=p, stderr=unc.stderr, status=unc.status, covariance=unc.covariance,
         correlation=unc.correlation, fixed=fixed_mask, chi2=chi2,
         reduced_chi2=unc.reduced_chi2, n_data=n, n_free=k,
-        r_squared=_r2(model_force, data, valid),
-        r_squared_contact=_r2(model_force, data, in_contact),
+        r_squared=quality["r_squared"], r_squared_contact=quality["r_squared_contact"],
         aic=ll + 2 * k, bic=ll + k * math.log(n), converged=bool(ok_all[best]),
         start_losses=chi2_all,
         spec=spec, data=data, curves=curves, profile=profile, radius=pre["radius"],
         model_at=(u, spec, param, data), model_force=model_force,
-        model_contact_radius=radius_model, fitted_force=fitted_force, in_contact=in_contact,
+        model_contact_radius=radius_model, fitted_force=fitted_force,
+        in_contact=quality["in_contact"],
         parameterisation=param, optimiser=options.optimiser, start_steps=steps_all,
         warnings=msgs, timings=timings,
         search={"n_starts": options.n_starts, "screen": options.screen,
@@ -977,7 +1009,8 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
                 "optimiser": options.optimiser, "rtol": options.rtol, "seed": options.seed},
     )
     # quality per segment, flags, convergence, derived quantities
-    flagged = assess(result, max_steps=options.max_steps, evaluated=pre["evaluated"])
+    flagged = assess(result, max_steps=options.max_steps, evaluated=pre["evaluated"],
+                     quality=quality)
     if warn:
         for m in flagged:
             warn_at_caller(m, ModelValidityWarning)

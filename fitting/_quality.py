@@ -78,7 +78,8 @@ from ._spec import rheology_kind
 from ._uncertainty import delta_method, derived_quantities
 
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
-           "segment_quality", "contact_outside", "convergence", "check_contact_signal",
+           "r_squared_rows", "segment_quality", "segment_quality_rows", "contact_outside",
+           "convergence", "check_contact_signal",
            "assess", "warning_kinds", "warn_summary", "tabor_entry", "TABOR_JKR_MIN"]
 
 #: Reduced χ² above which the residuals are far above the noise (RMS residual > 5 σ).
@@ -107,15 +108,25 @@ TABOR_JKR_MIN = 5.0
 def r_squared(model, force, weight, mask) -> float:
     """$R^2 = 1 - \\sum w (F_m - F)^2 / \\sum w (F - \\bar F_w)^2$ over the masked samples
     (`weight` `None`: every sample once); nan with fewer than 2 samples or no variance."""
+    row = lambda x: None if x is None else np.reshape(np.asarray(x), (1, -1))  # noqa: E731
+    return float(r_squared_rows(row(model), row(force), row(weight), row(mask))[0])
+
+
+def r_squared_rows(model, force, weight, mask) -> np.ndarray:
+    """:func:`r_squared` of every row of `(rows, samples)` arrays at once (`weight` `None`:
+    every sample once): shape `(rows,)`."""
     mask = np.asarray(mask, dtype=bool)
-    f = np.asarray(force)[mask]
-    w = np.ones_like(f) if weight is None else np.asarray(weight)[mask]
-    if f.size < 2 or np.sum(w) <= 0:
-        return float("nan")
-    mean = float(np.sum(w * f) / np.sum(w))
-    ss_tot = float(np.sum(w * (f - mean) ** 2))
-    ss_res = float(np.sum(w * (np.asarray(model)[mask] - f) ** 2))
-    return 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
+    f = np.where(mask, np.asarray(force, dtype=float), 0.0)
+    w = np.where(mask, 1.0 if weight is None else np.asarray(weight, dtype=float), 0.0)
+    sw = np.sum(w, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.sum(w * f, axis=1) / sw
+        ss_tot = np.sum(w * (f - mean[:, None]) ** 2, axis=1)
+        e = np.where(mask, np.asarray(model, dtype=float), 0.0) - f
+        ss_res = np.sum(w * e * e, axis=1)
+        r2 = 1.0 - ss_res / ss_tot
+    ok = (np.sum(mask, axis=1) >= 2) & (sw > 0) & (ss_tot > 0)
+    return np.where(ok, r2, np.nan)
 
 
 @dataclasses.dataclass
@@ -147,23 +158,45 @@ def segment_quality(force, fitted_force, model_force, noise, weight, valid,
                     segment) -> list[SegmentQuality]:
     """:class:`SegmentQuality` of every segment present (arrays `(curves, samples)`;
     `fitted_force` for the residuals, `model_force` for $R^2$, as the headline values)."""
-    valid = np.asarray(valid) > 0
-    seg = np.asarray(segment)
-    w = np.asarray(weight, dtype=float)
-    r = (np.asarray(fitted_force) - np.asarray(force)) / np.asarray(noise)
-    out = []
+    return segment_quality_rows(*(np.asarray(x)[None] for x in (
+        force, fitted_force, model_force, noise, weight, valid, segment)))[0]
+
+
+def segment_quality_rows(force, fitted_force, model_force, noise, weight, valid,
+                         segment) -> list[list[SegmentQuality]]:
+    """:func:`segment_quality` of several fits at once (arrays `(fits, curves, samples)`):
+    one list per fit."""
+    rows = np.shape(force)[0]
+    flat = lambda x: np.reshape(np.asarray(x), (rows, -1))  # noqa: E731
+    force, fitted, model, noise, w = (flat(x) for x in (force, fitted_force, model_force,
+                                                          noise, weight))
+    valid = flat(valid) > 0
+    seg = flat(segment)
+    w = w.astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = (fitted - force) / noise
+    out: list[list[SegmentQuality]] = [[] for _ in range(rows)]
     for j, name in enumerate(SEGMENTS):
         m = valid & (seg == j)
-        if not m.any():
+        present = np.any(m, axis=1)
+        if not present.any():
             continue
-        wm = w[m]
-        chi = float(np.sum(wm * r[m] ** 2) / np.sum(wm)) if np.sum(wm) > 0 else math.nan
-        r2 = r_squared(model_force, force, w, m)
-        described = not (chi > INADEQUATE_CHI2 or (r2 < POOR_R2 and chi > 2.0))
-        out.append(SegmentQuality(
-            segment=name, n_kept=int(m.sum()), n_measured=int(round(float(np.sum(wm)))),
-            r_squared=r2, r_squared_unweighted=r_squared(model_force, force, None, m),
-            reduced_chi2=chi, max_residual=float(np.max(np.abs(r[m]))), described=described))
+        wm = np.where(m, w, 0.0)
+        sw = np.sum(wm, axis=1)
+        r2m = np.where(m, r, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chi = np.where(sw > 0, np.sum(wm * r2m * r2m, axis=1) / sw, np.nan)
+        r2 = r_squared_rows(model, force, w, m)
+        r2u = r_squared_rows(model, force, None, m)
+        largest = np.max(np.abs(r2m), axis=1)
+        kept = np.sum(m, axis=1)
+        for i in np.flatnonzero(present):
+            c, q = float(chi[i]), float(r2[i])
+            described = not (c > INADEQUATE_CHI2 or (q < POOR_R2 and c > 2.0))
+            out[i].append(SegmentQuality(
+                segment=name, n_kept=int(kept[i]), n_measured=int(round(float(sw[i]))),
+                r_squared=q, r_squared_unweighted=float(r2u[i]), reduced_chi2=c,
+                max_residual=float(largest[i]), described=described))
     return out
 
 
@@ -268,18 +301,26 @@ def check_contact_signal(curves, spec) -> None:
                 "segments") from None
 
 
-def assess(result, *, max_steps: int | None = None, evaluated=None) -> list[str]:
+def assess(result, *, max_steps: int | None = None, evaluated=None,
+           quality=None) -> list[str]:
     """Fill the quality fields of a :class:`FitResult` (`r_squared_unweighted`,
     `segments`, `flags`, `convergence`, `stderr_scale`, `derived`) and return the new warning
     messages (also appended to `result.warnings`). `evaluated`: ``(derived, tabor)``, the
     values and gradients of :func:`fitting._uncertainty.derived_fn` and :func:`tabor_fn` at
-    ``result.values`` when already computed (a chunk of curves in one call), else `None`."""
+    ``result.values`` when already computed (a chunk of curves in one call), else `None`;
+    `quality`: ``{"r_squared_unweighted", "segments"}`` when already computed (for a chunk
+    at once, :func:`r_squared_rows`, :func:`segment_quality_rows`), else `None`."""
     derived_at, tabor_at = (None, None) if evaluated is None else evaluated
     data = result.data
-    valid = np.asarray(data.valid) > 0
-    result.r_squared_unweighted = r_squared(result.model_force, data.force, None, valid)
-    result.segments = segment_quality(data.force, result.fitted_force, result.model_force,
-                                      data.noise, data.weight, data.valid, data.segment)
+    if quality is None:
+        valid = np.asarray(data.valid) > 0
+        quality = {"r_squared_unweighted": r_squared(result.model_force, data.force, None,
+                                                     valid),
+                   "segments": segment_quality(data.force, result.fitted_force,
+                                               result.model_force, data.noise, data.weight,
+                                               data.valid, data.segment)}
+    result.r_squared_unweighted = quality["r_squared_unweighted"]
+    result.segments = quality["segments"]
     red = float(result.reduced_chi2)
     result.stderr_scale = math.sqrt(red) if math.isfinite(red) and red > 0 else math.nan
     flags: dict[str, str] = {}

@@ -356,6 +356,20 @@ def test_batched_finish_equals_the_per_curve_finish(curves):
         model = np.asarray(predict(r.spec, jnp.asarray(r.values), r.data).force)
         np.testing.assert_allclose(r.model_force, np.where(np.isfinite(model), model, 0.0),
                                    rtol=1e-12, atol=1e-12 * np.max(np.abs(model)))
+        # R^2 and the segments' quality (computed for the chunk at once), by hand per curve
+        d = r.data
+        valid = np.asarray(d.valid) > 0
+        for mask, got in ((valid, r.r_squared), (r.in_contact, r.r_squared_contact)):
+            f, w, fm = (np.asarray(x)[mask] for x in (d.force, d.weight, r.model_force))
+            mean = np.sum(w * f) / np.sum(w)
+            want = 1 - np.sum(w * (fm - f) ** 2) / np.sum(w * (f - mean) ** 2)
+            assert got == pytest.approx(want, rel=1e-12)
+        for q in r.segments:
+            m = valid & (np.asarray(d.segment) == fitting._prepare.SEGMENTS.index(q.segment))
+            e = ((np.asarray(r.fitted_force) - np.asarray(d.force)) / np.asarray(d.noise))[m]
+            w = np.asarray(d.weight)[m]
+            assert q.n_kept == m.sum() and q.max_residual == pytest.approx(np.max(np.abs(e)))
+            assert q.reduced_chi2 == pytest.approx(np.sum(w * e**2) / np.sum(w), rel=1e-12)
     # eta1 not determined: the relaxation time it enters is not determined either
     assert {d["name"]: d for d in res.results[0].derived}["tau"]["status"] == "not determined"
     assert {d["name"]: d for d in res.results[1].derived}["tau"]["status"] == "ok"

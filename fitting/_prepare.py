@@ -57,6 +57,7 @@ import jaxcontact as jc
 from jaxcontact._validate import plain
 
 from ._curve import Curve, select_segments
+from ._host import rebuild
 from ._spec import ModelSpec
 
 __all__ = ["CurveBatch", "prepare_curves", "stack_batches", "select_samples", "sample_weights",
@@ -223,8 +224,19 @@ def noise_level(force: np.ndarray, baseline_noise: float | None) -> float:
         return max(float(baseline_noise), floor)
     est = 0.0
     if force.size >= 5:
-        est = 1.4826 * float(np.median(np.abs(np.diff(force, 2)))) / math.sqrt(6.0)
+        est = 1.4826 * _median(np.abs(np.diff(force, 2))) / math.sqrt(6.0)
     return max(est, floor)
+
+
+def _median(x: np.ndarray) -> float:
+    """`np.median` of a non-empty 1-D array, the same number (the middle sample, or the mean
+    of the two middle ones computed as `np.mean` does: their sum halved; NaN if any), in a
+    sort instead of `np.median`'s general machinery (per curve, twice: ~5x faster)."""
+    s = np.sort(x)
+    m = s.size // 2
+    if s.size and s[-1] != s[-1]:  # NaN (sorted last)
+        return math.nan
+    return float(s[m]) if s.size % 2 else float((s[m - 1] + s[m]) / 2.0)
 
 
 def _jump_index(f: np.ndarray, sigma: float) -> int | None:
@@ -280,7 +292,9 @@ def sample_weights(pick: np.ndarray, n: int) -> np.ndarray:
     pick = np.asarray(pick)
     if pick.size == 1:
         return np.array([float(n)])
-    edges = np.r_[0, (pick[:-1] + pick[1:]) // 2 + 1, n]
+    if pick.size == n:  # every sample kept (`select_samples` within its budget): one each
+        return np.ones(n)
+    edges = np.concatenate(([0], (pick[:-1] + pick[1:]) // 2 + 1, [n]))
     return np.diff(edges).astype(float)
 
 
@@ -297,36 +311,35 @@ def _intervals(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if t.size == 1:
         return t - 0.5, t + 0.5
     mid = 0.5 * (t[1:] + t[:-1])
-    lower = np.r_[t[0], mid]
-    upper = np.r_[mid, t[-1]]
+    lower = np.concatenate((t[:1], mid))
+    upper = np.concatenate((mid, t[-1:]))
     return lower, upper
 
 
 def _select(curve: Curve, spec: ModelSpec, n: int) -> tuple[Curve, np.ndarray]:
     """The samples the model uses (see the module docstring) and their indices in `curve`."""
     names = curve.segment_names
-    index = np.arange(len(curve))
     if spec.model == "relaxed":
         if "retract" in names:
             # the lift starts at the deepest sample up to the first retract sample (an
-            # inferred one-sample "approach" at the top of a pure lift is kept)
-            first = int(np.argmax(curve.segment == names.index("retract")))
+            # inferred one-sample "approach" at the top of a pure lift is kept); the
+            # segment indices never decrease (`Curve`): the first retract sample by bisection
+            first = int(np.searchsorted(curve.segment, names.index("retract")))
             head = curve.displacement[: first + 1]
             i0 = int(len(head) - 1 - np.argmax(head[::-1]))
         else:
             i0 = 0
-        keep = index >= i0
-        seg = np.full(int(keep.sum()), SEGMENTS.index("retract"))
-    else:
-        wanted = [s for s in SEGMENTS if s in names]
-        if "approach" not in wanted:
-            raise ValueError(f"curve {n} ({curve.source or 'no source'}): the history model "
-                             f"needs an approach segment (the contact's history); its "
-                             f"segments are {names}; for a retract alone use "
-                             "model='relaxed'")
-        keep = np.isin(np.asarray(names, dtype=object)[curve.segment], wanted)
-        seg = np.array([SEGMENTS.index(names[j]) for j in curve.segment[keep]])
-    return seg, index[keep]
+        index = np.arange(i0, len(curve))
+        return np.full(index.size, SEGMENTS.index("retract")), index
+    if "approach" not in names:
+        raise ValueError(f"curve {n} ({curve.source or 'no source'}): the history model "
+                         f"needs an approach segment (the contact's history); its "
+                         f"segments are {names}; for a retract alone use "
+                         "model='relaxed'")
+    # each segment's code in SEGMENTS (-1: not used, a rest)
+    code = np.array([SEGMENTS.index(s) if s in SEGMENTS else -1 for s in names])[curve.segment]
+    index = np.flatnonzero(code >= 0)
+    return code[index], index
 
 
 def prepare_curves(
@@ -381,8 +394,9 @@ def prepare_curves(
                              f"in the segments the {spec.model} model uses")
         noise = c.contact.noise if c.contact is not None else None
         ret = seg == SEGMENTS.index("retract")
-        sigma = noise_level(f_all[ret] if ret.any() else f_all, noise)
-        j_ret = _jump_index(f_all[ret], sigma) if ret.any() else None
+        f_ret = (f_all if ret.all() else f_all[ret]) if ret.any() else None
+        sigma = noise_level(f_all if f_ret is None else f_ret, noise)
+        j_ret = None if f_ret is None else _jump_index(f_ret, sigma)
         keep = []
         if j_ret is not None:
             j = int(np.flatnonzero(ret)[j_ret])
@@ -394,7 +408,10 @@ def prepare_curves(
                 keep += list(range(c0 - 2, c0 + 3))
         pick = select_samples(f_all, seg, budget, keep)
         weight = sample_weights(pick, len(t_all))
-        t, d, f, seg, idx = t_all[pick], d_all[pick], f_all[pick], seg[pick], idx[pick]
+        if len(pick) < len(t_all):  # subsampled (else every sample, as selected)
+            t, d, f, seg, idx = t_all[pick], d_all[pick], f_all[pick], seg[pick], idx[pick]
+        else:
+            t, d, f = t_all, d_all, f_all
         t = t - t[0]
         label = f"curve {n} ({c.source or 'no source'})"
         if rng is not None:
@@ -474,22 +491,30 @@ def _stack_rows(rows, n_max: int, profile, host: bool = False) -> CurveBatch:
     """A `CurveBatch` of per-curve rows (dicts of sample arrays and scalars), every curve
     padded to `n_max` samples: the last sample repeated with weight 0, not valid, not in
     contact, with a zero-width interval. `host`: numpy arrays, else on the device."""
-
-    def pad(a):
-        a = np.asarray(a)
-        return np.concatenate([a, np.full(n_max - len(a), a[-1], dtype=a.dtype)])
-
-    stack = {key: np.stack([pad(r[key]) for r in rows]) for key in _ROW_KEYS}
-    valid = np.stack([(np.arange(n_max) < len(r["ts"])).astype(float) for r in rows])
-    stack["weight"] = np.where(valid > 0, stack["weight"], 0.0)
-    stack["contact"] = np.where(valid > 0, stack["contact"], 0.0)
-    stack["lower"] = np.where(valid > 0, stack["lower"], stack["ts"])
-    stack["upper"] = np.where(valid > 0, stack["upper"], stack["ts"])
+    lengths = [len(r["ts"]) for r in rows]
+    arrays = {}
+    for key in _ROW_KEYS:  # each row written into its place (no padded copy, no stack)
+        parts = [np.asarray(r[key]) for r in rows]
+        out = np.empty((len(rows), n_max), dtype=np.result_type(*[a.dtype for a in parts]))
+        for i, (a, m) in enumerate(zip(parts, lengths, strict=True)):
+            out[i, :m] = a
+            out[i, m:] = a[-1]
+        arrays[key] = out
+    valid = np.zeros((len(rows), n_max))
+    for i, m in enumerate(lengths):
+        valid[i, :m] = 1.0
+        if m < n_max:
+            arrays["weight"][i, m:] = 0.0
+            arrays["contact"][i, m:] = 0.0
+            arrays["lower"][i, m:] = arrays["ts"][i, m:]
+            arrays["upper"][i, m:] = arrays["ts"][i, m:]
     scal = {key: np.array([r[key] for r in rows], dtype=float) for key in _CURVE_KEYS}
-    arrays = dict(stack, valid=valid, **scal)
+    arrays = dict(arrays, valid=valid, **scal)
     if not host:  # one transfer of all arrays (not one `jnp.asarray` dispatch each)
         arrays = jax.device_put(arrays)
-    return CurveBatch(**arrays, profile=profile)
+    arrays["profile"] = profile
+    # built without equinox's `__init__` (per curve of a map; `fitting._host`)
+    return rebuild(lambda v: CurveBatch(**v), arrays, key="CurveBatch")
 
 
 def stack_batches(batches: Sequence[CurveBatch], length: int | None = None, *,

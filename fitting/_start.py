@@ -119,7 +119,7 @@ def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
     """G from F = 8 G (a d - I(a)) with g(a) = d; returns (G, a)."""
     if isinstance(profile, jc.Parabola):
         # plain floats: the general path dispatches a few eager JAX operations
-        R = float(profile.R)
+        R = _radius(profile)
         a = math.sqrt(R * depth)
         integral = a**3 / (3.0 * R)
     else:
@@ -127,6 +127,20 @@ def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
         integral = float(profile.integral_g(a))
     lever = 8.0 * (a * depth - integral)
     return abs(force) / max(lever, 1e-300), a
+
+
+_RADII: dict[int, tuple] = {}
+
+
+def _radius(profile) -> float:
+    """`float(profile.R)` of a parabola or sphere, read from the device once per profile
+    object (a map shares one; each read is a transfer, ~10 µs)."""
+    hit = _RADII.get(id(profile))
+    if hit is None or hit[0] is not profile:
+        if len(_RADII) > 16:
+            _RADII.clear()
+        hit = _RADII[id(profile)] = (profile, float(profile.R))  # held: its id stays its own
+    return hit[1]
 
 
 def _gm(x) -> float:
@@ -138,7 +152,9 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
     gi, g0, tau, dg, tmin, tmax, dur, dmax, frng = ([] for _ in range(9))
     for c in curves:
         names = c.segment_names
-        r = c.segment == names.index("retract") if "retract" in names else np.ones(len(c), bool)
+        # the retract: one block of samples (segment indices never decrease, `Curve`)
+        j = names.index("retract") if "retract" in names else None
+        r = slice(None) if j is None else slice(*np.searchsorted(c.segment, [j, j + 1]).tolist())
         t, d, f = c.time[r], c.displacement[r], c.force[r]
         if "retract" not in names and spec.model == "history":
             # an approach-only fit: the approach read backwards from its deepest sample
@@ -166,26 +182,32 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
                 g0_est = max(g0_est, _hertz_modulus(float(fh[0]),
                                                     float(np.max(c.displacement[h])),
                                                     profile)[0])
-        rad = (float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere)
+        rad = (_radius(profile) if isinstance(profile, jc.Parabola | jc.Sphere)
                else a0 * a0 / depth)
         fmin = float(np.min(f))
-        dg.append(max(abs(fmin), 1e-3 * float(np.ptp(c.force))) * g_h
+        force_range = float(np.ptp(c.force))
+        dg.append(max(abs(fmin), 1e-3 * force_range) * g_h
                   / (1.5 * math.pi * rad * g0_est))
         gi.append(g_h)
         g0.append(g0_est)
         tau.append(max(tau_est, 1e-300))
         steps = np.diff(c.time)
-        tmin.append(2.0 * float(np.min(steps[steps > 0])) if np.any(steps > 0) else 1e-6)
+        steps = steps[steps > 0]
+        tmin.append(2.0 * float(np.min(steps)) if steps.size else 1e-6)
         dur.append(float(c.time[-1] - c.time[0]))
         dmax.append(float(np.max(c.displacement)))
-        frng.append(float(np.ptp(c.force)))
+        frng.append(force_range)
     if not gi:
         raise ValueError("initial guess: no curve with a positive indentation at the start "
                          "of its retract (is the contact point right?)")
     duration = max(dur)
+    if len(gi) == 1:  # one curve (a map's): the geometric means of one value, in one call
+        means = [float(v) for v in np.exp(np.log(np.array([gi[0], g0[0], tau[0], dg[0]])))]
+    else:
+        means = [_gm(gi), _gm(g0), _gm(tau), _gm(dg)]
     return DataScales(
-        g_relaxed=_gm(gi), g_glass=_gm(g0), tau=_gm(tau), tau_min=min(tmin),
-        tau_max=10.0 * duration, duration=duration, work_of_adhesion=_gm(dg),
+        g_relaxed=means[0], g_glass=means[1], tau=means[2], tau_min=min(tmin),
+        tau_max=10.0 * duration, duration=duration, work_of_adhesion=means[3],
         depth=max(dmax), force_range=max(frng),
     )
 

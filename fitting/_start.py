@@ -160,13 +160,15 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
             # an approach-only fit: the approach read backwards from its deepest sample
             i = int(np.argmax(d))
             t, d, f = t[: i + 1], d[i::-1], f[i::-1]
+        # (array methods, not the np functions: the same numbers without their per-call
+        # overhead; this runs per curve of a map)
         if spec.model == "relaxed":
             depth = float(d[0])
         else:
-            depth = float(np.max(d[: max(1, len(d) // 20)]))
+            depth = float(d[: max(1, len(d) // 20)].max())
         if not depth > 0 or len(d) < 2:
             continue
-        g_h, a0 = _hertz_modulus(float(np.max(f[: max(1, len(f) // 20)])), depth, profile)
+        g_h, a0 = _hertz_modulus(float(f[: max(1, len(f) // 20)].max()), depth, profile)
         m = max(4, len(d) // 20)
         dd = d[:m] - d[0]
         slope = float(np.dot(dd, f[:m] - f[0]) / max(float(np.dot(dd, dd)), 1e-300))
@@ -184,18 +186,18 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
                                                     profile)[0])
         rad = (_radius(profile) if isinstance(profile, jc.Parabola | jc.Sphere)
                else a0 * a0 / depth)
-        fmin = float(np.min(f))
-        force_range = float(np.ptp(c.force))
+        fmin = float(f.min())
+        force_range = float(c.force.max() - c.force.min())  # np.ptp
         dg.append(max(abs(fmin), 1e-3 * force_range) * g_h
                   / (1.5 * math.pi * rad * g0_est))
         gi.append(g_h)
         g0.append(g0_est)
         tau.append(max(tau_est, 1e-300))
-        steps = np.diff(c.time)
+        steps = c.time[1:] - c.time[:-1]
         steps = steps[steps > 0]
-        tmin.append(2.0 * float(np.min(steps)) if steps.size else 1e-6)
+        tmin.append(2.0 * float(steps.min()) if steps.size else 1e-6)
         dur.append(float(c.time[-1] - c.time[0]))
-        dmax.append(float(np.max(c.displacement)))
+        dmax.append(float(c.displacement.max()))
         frng.append(force_range)
     if not gi:
         raise ValueError("initial guess: no curve with a positive indentation at the start "
@@ -234,7 +236,7 @@ def initial_guess(curves: Sequence[Curve], spec: ModelSpec, profile,
     s = data_scales(curves, spec, profile) if scales is None else scales
     n = spec.arms
     taus = s.tau * np.logspace(-1, 1, n) if n > 1 else [s.tau]
-    if any(kind == "time" for _, _, kind in rheology_kind(spec).parameters(n)):
+    if any(kind == "time" for _, _, kind in parameter_info(spec)):
         # relaxation times as parameters: inside their bounds (`default_bounds`), not at them
         lo, hi = math.log(s.tau_min), math.log(s.tau_resolved)
         taus = np.exp(np.clip(np.log(taus), lo + 0.05 * (hi - lo), hi - 0.05 * (hi - lo)))
@@ -411,13 +413,16 @@ def search_points(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
     u = (latin_hypercube(n, dim, seed=seed, designs=20 if n <= MAXIMIN_POINTS else 1)
          if n > 0 else np.zeros((0, dim)))
 
-    def logu(x, lo, hi):
-        return np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x)
-
-    g_inf = logu(u[:, 0], 1e-2 * s.g_relaxed, 1e2 * s.g_relaxed)
-    ratio = logu(u[:, 1], 1.02, 100.0)
-    work = logu(u[:, 2], s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)
-    taus = np.sort(logu(u[:, 3:3 + arms], s.tau_min, s.tau_resolved), axis=1).T
+    # log-uniform coordinates, exp(log lo + (log hi - log lo) x), all columns in one pass:
+    # G_inf, the glass-to-relaxed ratio, the work of adhesion, the relaxation times
+    ranges = ([(1e-2 * s.g_relaxed, 1e2 * s.g_relaxed), (1.02, 100.0),
+               (s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)]
+              + [(s.tau_min, s.tau_resolved)] * arms)
+    log_lo = np.array([math.log(lo) for lo, _ in ranges])
+    log_span = np.array([math.log(hi) - math.log(lo) for lo, hi in ranges])
+    logu = np.exp(log_lo + log_span * u[:, :3 + arms])
+    g_inf, ratio, work = logu[:, 0], logu[:, 1], logu[:, 2]
+    taus = np.sort(logu[:, 3:], axis=1).T
     if arms > 1:
         # arm shares from the remaining coordinates (sorted-uniform spacings)
         cuts = np.sort(u[:, 3 + arms:3 + 2 * arms - 1], axis=1)
@@ -430,7 +435,8 @@ def search_points(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
     delta = (u[:, -2] - 0.5) * 0.5 * s.depth
     f0 = (u[:, -1] - 0.5) * 0.1 * s.force_range
     out = from_physical(spec, g_inf, g_inf * ratio, taus, weights, work, delta, f0)
-    return {k: np.broadcast_to(np.asarray(v, dtype=float), (len(u),)) for k, v in out.items()}
+    return {k: v if isinstance(v, np.ndarray) and v.shape == (len(u),) and v.dtype == float
+            else np.broadcast_to(np.asarray(v, dtype=float), (len(u),)) for k, v in out.items()}
 
 
 def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0

@@ -653,9 +653,11 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
                 errors[g] = _message(exc)
                 continue
             pb = problems[g]
-            say(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} "
-                f"curve(s), {pb.data.n_samples} samples (standing for {pb.data.n_measured} "
-                f"measured), {len(pb.param.free)} free parameter(s), {len(pb.zs)} start(s)")
+            if show is not None:  # (the message's sums are not made for no one, per curve)
+                say(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} "
+                    f"curve(s), {pb.data.n_samples} samples (standing for "
+                    f"{pb.data.n_measured} measured), {len(pb.param.free)} free "
+                    f"parameter(s), {len(pb.zs)} start(s)")
             prepared[g] = time.perf_counter() - t0
             timings["prepare"] += prepared[g]
         if not problems:

@@ -493,6 +493,7 @@ def _check_profile(profile) -> None:
 _ROW_KEYS = ("ts", "drive", "indentation", "force", "lower", "upper", "segment", "index",
              "contact", "noise", "weight")
 _CURVE_KEYS = ("sigma", "depth", "detaches", "stiffness")
+_FLOAT_KEYS = tuple(k for k in _ROW_KEYS if k not in ("segment", "index"))
 
 
 def _stack_rows(rows, n_max: int, profile, host: bool = False) -> CurveBatch:
@@ -500,8 +501,14 @@ def _stack_rows(rows, n_max: int, profile, host: bool = False) -> CurveBatch:
     padded to `n_max` samples: the last sample repeated with weight 0, not valid, not in
     contact, with a zero-width interval. `host`: numpy arrays, else on the device."""
     lengths = [len(r["ts"]) for r in rows]
-    if len(rows) == 1 and lengths[0] == n_max:  # one curve (a map's), nothing to pad: copies
-        arrays = {key: np.array(rows[0][key])[None] for key in _ROW_KEYS}
+    row = rows[0]
+    if len(rows) == 1 and lengths[0] == n_max and all(
+            np.asarray(row[key]).dtype == np.float64 for key in _FLOAT_KEYS):
+        # one curve (a map's), nothing to pad: the float rows copied in one call, each field
+        # a row of that block (fewer numpy calls per curve; the same arrays)
+        block = np.stack([row[key] for key in _FLOAT_KEYS])
+        arrays = {key: block[i:i + 1] for i, key in enumerate(_FLOAT_KEYS)}
+        arrays.update({key: np.array(row[key])[None] for key in ("segment", "index")})
         valid = np.ones((1, n_max))
     else:
         arrays = {}

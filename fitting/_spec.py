@@ -296,8 +296,17 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
     Kinds: "modulus", "viscosity", "time", "adhesion" (all positive, fitted in logs),
     "offset_length", "offset_force" (any sign, fitted linearly).
     """
-    return list(_parameter_info(spec.rheology, spec.arms, spec.contact_offset,
-                                spec.force_offset))
+    hit = _INFO.get(id(spec))  # (a spec's fields read once: per curve of a map, twice)
+    if hit is None or hit[0] is not spec:
+        if len(_INFO) > 64:
+            _INFO.clear()
+        hit = _INFO[id(spec)] = (spec, _parameter_info(spec.rheology, spec.arms,
+                                                        spec.contact_offset,
+                                                        spec.force_offset))
+    return list(hit[1])
+
+
+_INFO: dict[int, tuple] = {}  # id(spec): (spec, info); held, so that the id stays its own
 
 
 @functools.lru_cache(maxsize=64)

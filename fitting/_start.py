@@ -432,8 +432,10 @@ def search_points(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
         weights = (weights / weights.sum(axis=1, keepdims=True)).T
     else:
         weights = np.ones((max(arms, 1), len(u)))
-    delta = (u[:, -2] - 0.5) * 0.5 * s.depth
-    f0 = (u[:, -1] - 0.5) * 0.1 * s.force_range
+    # the offsets' coordinates (only where the model has them: `from_physical` reads them
+    # then only)
+    delta = (u[:, -2] - 0.5) * 0.5 * s.depth if spec.contact_offset else 0.0
+    f0 = (u[:, -1] - 0.5) * 0.1 * s.force_range if spec.force_offset else 0.0
     out = from_physical(spec, g_inf, g_inf * ratio, taus, weights, work, delta, f0)
     return {k: v if isinstance(v, np.ndarray) and v.shape == (len(u),) and v.dtype == float
             else np.broadcast_to(np.asarray(v, dtype=float), (len(u),)) for k, v in out.items()}

@@ -168,9 +168,12 @@ class Parameterisation(eqx.Module):
         """Free vector of internal coordinates `u` (clipped strictly inside the bounds;
         `u`: shape `(p,)` or `(..., p)`)."""
         u = np.asarray(u, dtype=float)
+        lo, hi, ref = (np.asarray(self.lower), np.asarray(self.upper),
+                       np.asarray(self.reference))
+        if self.free == tuple(range(len(lo))):  # every one free: no selection (no copies)
+            return internal_to_free(u, lo, hi, ref)
         idx = list(self.free)
-        return internal_to_free(u[..., idx], np.asarray(self.lower)[idx],
-                                np.asarray(self.upper)[idx], np.asarray(self.reference)[idx])
+        return internal_to_free(u[..., idx], lo[idx], hi[idx], ref[idx])
 
     @_host_method
     def at_bound(self, u) -> list[str | None]:

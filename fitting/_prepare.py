@@ -503,10 +503,10 @@ def _stack_rows(rows, n_max: int, profile, host: bool = False) -> CurveBatch:
     lengths = [len(r["ts"]) for r in rows]
     row = rows[0]
     if len(rows) == 1 and lengths[0] == n_max and all(
-            np.asarray(row[key]).dtype == np.float64 for key in _FLOAT_KEYS):
+            getattr(row[key], "dtype", None) == np.float64 for key in _FLOAT_KEYS):
         # one curve (a map's), nothing to pad: the float rows copied in one call, each field
         # a row of that block (fewer numpy calls per curve; the same arrays)
-        block = np.stack([row[key] for key in _FLOAT_KEYS])
+        block = np.array([row[key] for key in _FLOAT_KEYS])
         arrays = {key: block[i:i + 1] for i, key in enumerate(_FLOAT_KEYS)}
         arrays.update({key: np.array(row[key])[None] for key in ("segment", "index")})
         valid = np.ones((1, n_max))

@@ -213,7 +213,7 @@ def make_parameterisation(
     is_log = tuple(not kind.startswith("offset") for _, _, kind in info)
     fixed = normalise_names(fixed, names, "fixed")
     bounds = normalise_names(bounds, names, "bounds")
-    scales = scales or {}
+    scales = dict(scales or {})
     # the per-parameter work in Python floats, one array each at the end (per curve of a
     # map: the overhead of numpy calls on single entries counts)
     ref_f = [float(fixed.get(n, reference[n])) for n in names]

@@ -113,7 +113,6 @@ from ._start import (
     local_starts_batch,
     nested_starts,
     search_points,
-    search_starts,
 )
 from ._uncertainty import (
     IdentifiabilityWarning,
@@ -446,17 +445,25 @@ def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
     guess.update(normalise_names(o.initial, names, "initial"))
     fixed, notes = _approach_only(data, guess, normalise_names(o.fixed, names, "fixed"))
     bnds = default_bounds(spec, scales)
-    starts = [guess] + search_starts(spec, scales, o.n_starts - 1, seed=o.seed)
+    # the starts (rows, natural values): the guess, the search's points
+    # (:func:`search_starts` as one array), the nested starts
+    nested = []
     if previous is not None:
         nested = nested_starts(spec, previous.spec, previous.as_dict(), scales)
-        starts += nested
         _contain(bnds, nested, [n for n, _, kind in info if kind == "time"])
     bnds.update(normalise_names(o.bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
                                   scales={"contact_offset": scales.depth,
                                           "force_offset": scales.force_range}, host=True)
-    zs = param.z_of(param.to_internal([[s.get(n, guess[n]) for n in names]
-                                       for s in starts]))
+    starts = np.empty((o.n_starts + len(nested), len(names)))
+    starts[0] = [guess[n] for n in names]
+    if o.n_starts > 1:
+        points = search_points(spec, scales, o.n_starts - 1, seed=o.seed)
+        for j, n in enumerate(names):
+            starts[1:o.n_starts, j] = points[n] if n in points else guess[n]
+    for i, q in enumerate(nested, start=o.n_starts):
+        starts[i] = [q.get(n, guess[n]) for n in names]
+    zs = param.z_of(param.to_internal(starts))
     pool = None
     if o.screen:
         points = search_points(spec, scales, o.screen, seed=o.seed)
@@ -488,7 +495,7 @@ def _approach_only(data: CurveBatch, guess, fixed) -> tuple[dict, list[str]]:
     approach is non-adhesive, the JKR limit: it does not depend on it), and the note."""
     retract = (np.asarray(data.segment) == SEGMENTS.index("retract")) & \
         (np.asarray(data.valid) > 0) & (np.asarray(data.weight) > 0)
-    if np.any(retract):
+    if retract.any():
         return fixed, []
     held = "work_of_adhesion" in fixed
     fixed = dict(fixed)
@@ -660,9 +667,11 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
                 errors[g] = _message(exc)
                 continue
             pb = problems[g]
-            say(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} "
-                f"curve(s), {pb.data.n_samples} samples (standing for {pb.data.n_measured} "
-                f"measured), {len(pb.param.free)} free parameter(s), {len(pb.zs)} start(s)")
+            if show is not None:  # (the message's sums are not made for no one, per curve)
+                say(f"{pb.spec.model} model, {rheology_name(pb.spec)}: {pb.data.n_curves} "
+                    f"curve(s), {pb.data.n_samples} samples (standing for "
+                    f"{pb.data.n_measured} measured), {len(pb.param.free)} free "
+                    f"parameter(s), {len(pb.zs)} start(s)")
             prepared[g] = time.perf_counter() - t0
             timings["prepare"] += prepared[g]
         if not problems:

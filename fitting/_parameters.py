@@ -29,6 +29,7 @@ from scipy import special
 
 from jaxcontact._validate import plain
 
+from ._host import rebuild
 from ._spec import normalise_names
 
 __all__ = ["Parameterisation", "make_parameterisation", "AT_BOUND"]
@@ -68,12 +69,16 @@ def internal_to_free(th, lo, hi, ref) -> np.ndarray:
     """The inverse of :func:`free_to_internal` in numpy: free coordinates of the free
     parameters' internal coordinates `th` (clipped strictly inside the bounds)."""
     bounded = np.isfinite(lo) & np.isfinite(hi)
-    out = th - ref
-    if np.any(bounded):
-        span = np.where(bounded, hi - lo, 1.0)
-        s = np.clip((th - np.where(bounded, lo, 0.0)) / span, 1e-9, 1 - 1e-9)
-        out = np.where(bounded, np.log(s) - np.log1p(-s), out)
-    return out
+    if not bounded.any():
+        return th - ref
+    # (per curve of a map, so the numpy calls are few: every parameter bounded needs no
+    # selection, and np.clip's numbers come from two ufunc calls)
+    every = bounded.all()
+    span = hi - lo if every else np.where(bounded, hi - lo, 1.0)
+    s = np.minimum(np.maximum((th - (lo if every else np.where(bounded, lo, 0.0))) / span,
+                              1e-9), 1 - 1e-9)
+    out = np.log(s) - np.log1p(-s)
+    return out if every else np.where(bounded, out, th - ref)
 
 
 class Parameterisation(eqx.Module):
@@ -144,8 +149,10 @@ class Parameterisation(eqx.Module):
     def to_internal(self, p) -> np.ndarray:
         """Internal coordinates of natural parameters `p` (numpy)."""
         p = np.asarray(p, dtype=float)
-        is_log = np.asarray(self.log)
         with np.errstate(divide="ignore", invalid="ignore"):
+            if all(self.log):  # (the selection's numbers, in one call: per curve of a map)
+                return np.log(p)
+            is_log = np.asarray(self.log)
             return np.where(is_log, np.log(np.where(is_log, p, 1.0)),
                             p / np.asarray(self.scale))
 
@@ -161,9 +168,12 @@ class Parameterisation(eqx.Module):
         """Free vector of internal coordinates `u` (clipped strictly inside the bounds;
         `u`: shape `(p,)` or `(..., p)`)."""
         u = np.asarray(u, dtype=float)
+        lo, hi, ref = (np.asarray(self.lower), np.asarray(self.upper),
+                       np.asarray(self.reference))
+        if self.free == tuple(range(len(lo))):  # every one free: no selection (no copies)
+            return internal_to_free(u, lo, hi, ref)
         idx = list(self.free)
-        return internal_to_free(u[..., idx], np.asarray(self.lower)[idx],
-                                np.asarray(self.upper)[idx], np.asarray(self.reference)[idx])
+        return internal_to_free(u[..., idx], lo[idx], hi[idx], ref[idx])
 
     @_host_method
     def at_bound(self, u) -> list[str | None]:
@@ -204,16 +214,18 @@ def make_parameterisation(
     fixed = normalise_names(fixed, names, "fixed")
     bounds = normalise_names(bounds, names, "bounds")
     scales = dict(scales or {})
-    ref = np.array([float(fixed.get(n, reference[n])) for n in names])
-    scale = np.array([1.0 if lg else float(scales.get(n, 1.0)) for n, lg in
-                      zip(names, is_log, strict=True)])
-    for n, v, lg in zip(names, ref, is_log, strict=True):
+    # the per-parameter work in Python floats, one array each at the end (per curve of a
+    # map: the overhead of numpy calls on single entries counts)
+    ref_f = [float(fixed.get(n, reference[n])) for n in names]
+    scale_f = [1.0 if lg else float(scales.get(n, 1.0))
+               for n, lg in zip(names, is_log, strict=True)]
+    for n, v, lg in zip(names, ref_f, is_log, strict=True):
         if not math.isfinite(v) or (lg and v <= 0):
             what = "fixed" if n in fixed else "initial"
             rng = "(0, inf)" if lg else "(-inf, inf)"
             raise ValueError(f"{what} value of {n!r} must be finite and in {rng}; got {plain(v)}")
-    lo = np.full(len(names), -np.inf)
-    hi = np.full(len(names), np.inf)
+    lo_f = [-math.inf] * len(names)
+    hi_f = [math.inf] * len(names)
     for n, pair in bounds.items():
         i = names.index(n)
         try:
@@ -225,15 +237,19 @@ def make_parameterisation(
         if not ok:
             need = "0 < lower < upper" if is_log[i] else "finite lower < upper"
             raise ValueError(f"bounds for {n!r} must satisfy {need}; got {plain((a, b))}")
-        lo[i], hi[i] = ((math.log(a), math.log(b)) if is_log[i]
-                        else (a / scale[i], b / scale[i]))
+        lo_f[i], hi_f[i] = ((math.log(a), math.log(b)) if is_log[i]
+                            else (a / scale_f[i], b / scale_f[i]))
+    ref, scale, lo, hi = np.array(ref_f), np.array(scale_f), np.array(lo_f), np.array(hi_f)
     free = tuple(i for i, n in enumerate(names) if n not in fixed)
     if not free:
         raise ValueError("fixed: every parameter is fixed; nothing to fit")
     u = np.where(is_log, np.log(np.where(is_log, ref, 1.0)), ref / scale)
-    # a reference outside its bounds starts at the nearest bound (inside, by the clip of z_of)
-    u = np.clip(u, lo, hi)
+    # a reference outside its bounds starts at the nearest bound (inside, by the clip of
+    # z_of); np.clip's numbers in two ufunc calls
+    u = np.minimum(np.maximum(u, lo), hi)
     reference, sc, lower, upper = (u, scale, lo, hi) if host else \
         jax.device_put((u, scale, lo, hi))
-    return Parameterisation(free=free, log=is_log, reference=reference, scale=sc,
-                            lower=lower, upper=upper)
+    # built without equinox's `__init__` (per curve of a map; `fitting._host`)
+    return rebuild(lambda v: Parameterisation(free=free, log=is_log, **v),
+                   {"reference": reference, "scale": sc, "lower": lower, "upper": upper},
+                   key=("Parameterisation", free, is_log))

@@ -271,18 +271,22 @@ def check_contact_signal(curves, spec) -> None:
     samples (any model), or $|F|$ on a retract-only curve."""
     for n, c in enumerate(curves):
         names = c.segment_names
-        seg = np.asarray(c.segment)
         f = np.asarray(c.force, dtype=float)
+        # each segment one block of samples (segment indices never decrease, `Curve`):
+        # segment j is f[edges[j]:edges[j + 1]]
+        edges = np.searchsorted(c.segment, np.arange(len(names) + 1)).tolist()
         # a measured approach or hold (a loader's inferred one-sample approach at the top of
         # a pure lift is none) shows whether the tip pressed on the sample, whichever model
         # is fitted: a relaxed fit of a curve that never pressed has no contact either
-        pressed = [names.index(s) for s in ("approach", "hold")
-                   if s in names and np.count_nonzero(seg == names.index(s)) > 1]
+        pressed = sorted(j for j in (names.index(s) for s in ("approach", "hold") if s in names)
+                         if edges[j + 1] - edges[j] > 1)
         if pressed:
-            part, what = f[np.isin(seg, pressed)], "approach and hold"
+            blocks = [f[edges[j]:edges[j + 1]] for j in pressed]
+            part = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+            what = "approach and hold"
         else:
-            part, what = np.abs(f[seg == names.index("retract")] if "retract" in names
-                                else f), "retract (|F|)"
+            j = names.index("retract") if "retract" in names else None
+            part, what = np.abs(f if j is None else f[edges[j]:edges[j + 1]]), "retract (|F|)"
             if spec.model == "history":
                 what = "curve (|F|)"
         if part.size == 0:

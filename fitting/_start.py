@@ -119,7 +119,7 @@ def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
     """G from F = 8 G (a d - I(a)) with g(a) = d; returns (G, a)."""
     if isinstance(profile, jc.Parabola):
         # plain floats: the general path dispatches a few eager JAX operations
-        R = float(profile.R)
+        R = _radius(profile)
         a = math.sqrt(R * depth)
         integral = a**3 / (3.0 * R)
     else:
@@ -127,6 +127,20 @@ def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
         integral = float(profile.integral_g(a))
     lever = 8.0 * (a * depth - integral)
     return abs(force) / max(lever, 1e-300), a
+
+
+_RADII: dict[int, tuple] = {}
+
+
+def _radius(profile) -> float:
+    """`float(profile.R)` of a parabola or sphere, read from the device once per profile
+    object (a map shares one; each read is a transfer, ~10 µs)."""
+    hit = _RADII.get(id(profile))
+    if hit is None or hit[0] is not profile:
+        if len(_RADII) > 16:
+            _RADII.clear()
+        hit = _RADII[id(profile)] = (profile, float(profile.R))  # held: its id stays its own
+    return hit[1]
 
 
 def _gm(x) -> float:
@@ -138,19 +152,23 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
     gi, g0, tau, dg, tmin, tmax, dur, dmax, frng = ([] for _ in range(9))
     for c in curves:
         names = c.segment_names
-        r = c.segment == names.index("retract") if "retract" in names else np.ones(len(c), bool)
+        # the retract: one block of samples (segment indices never decrease, `Curve`)
+        j = names.index("retract") if "retract" in names else None
+        r = slice(None) if j is None else slice(*np.searchsorted(c.segment, [j, j + 1]).tolist())
         t, d, f = c.time[r], c.displacement[r], c.force[r]
         if "retract" not in names and spec.model == "history":
             # an approach-only fit: the approach read backwards from its deepest sample
             i = int(np.argmax(d))
             t, d, f = t[: i + 1], d[i::-1], f[i::-1]
+        # (array methods, not the np functions: the same numbers without their per-call
+        # overhead; this runs per curve of a map)
         if spec.model == "relaxed":
             depth = float(d[0])
         else:
-            depth = float(np.max(d[: max(1, len(d) // 20)]))
+            depth = float(d[: max(1, len(d) // 20)].max())
         if not depth > 0 or len(d) < 2:
             continue
-        g_h, a0 = _hertz_modulus(float(np.max(f[: max(1, len(f) // 20)])), depth, profile)
+        g_h, a0 = _hertz_modulus(float(f[: max(1, len(f) // 20)].max()), depth, profile)
         m = max(4, len(d) // 20)
         dd = d[:m] - d[0]
         slope = float(np.dot(dd, f[:m] - f[0]) / max(float(np.dot(dd, dd)), 1e-300))
@@ -166,26 +184,32 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
                 g0_est = max(g0_est, _hertz_modulus(float(fh[0]),
                                                     float(np.max(c.displacement[h])),
                                                     profile)[0])
-        rad = (float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere)
+        rad = (_radius(profile) if isinstance(profile, jc.Parabola | jc.Sphere)
                else a0 * a0 / depth)
-        fmin = float(np.min(f))
-        dg.append(max(abs(fmin), 1e-3 * float(np.ptp(c.force))) * g_h
+        fmin = float(f.min())
+        force_range = float(c.force.max() - c.force.min())  # np.ptp
+        dg.append(max(abs(fmin), 1e-3 * force_range) * g_h
                   / (1.5 * math.pi * rad * g0_est))
         gi.append(g_h)
         g0.append(g0_est)
         tau.append(max(tau_est, 1e-300))
-        steps = np.diff(c.time)
-        tmin.append(2.0 * float(np.min(steps[steps > 0])) if np.any(steps > 0) else 1e-6)
+        steps = c.time[1:] - c.time[:-1]
+        steps = steps[steps > 0]
+        tmin.append(2.0 * float(steps.min()) if steps.size else 1e-6)
         dur.append(float(c.time[-1] - c.time[0]))
-        dmax.append(float(np.max(c.displacement)))
-        frng.append(float(np.ptp(c.force)))
+        dmax.append(float(c.displacement.max()))
+        frng.append(force_range)
     if not gi:
         raise ValueError("initial guess: no curve with a positive indentation at the start "
                          "of its retract (is the contact point right?)")
     duration = max(dur)
+    if len(gi) == 1:  # one curve (a map's): the geometric means of one value, in one call
+        means = [float(v) for v in np.exp(np.log(np.array([gi[0], g0[0], tau[0], dg[0]])))]
+    else:
+        means = [_gm(gi), _gm(g0), _gm(tau), _gm(dg)]
     return DataScales(
-        g_relaxed=_gm(gi), g_glass=_gm(g0), tau=_gm(tau), tau_min=min(tmin),
-        tau_max=10.0 * duration, duration=duration, work_of_adhesion=_gm(dg),
+        g_relaxed=means[0], g_glass=means[1], tau=means[2], tau_min=min(tmin),
+        tau_max=10.0 * duration, duration=duration, work_of_adhesion=means[3],
         depth=max(dmax), force_range=max(frng),
     )
 
@@ -212,7 +236,7 @@ def initial_guess(curves: Sequence[Curve], spec: ModelSpec, profile,
     s = data_scales(curves, spec, profile) if scales is None else scales
     n = spec.arms
     taus = s.tau * np.logspace(-1, 1, n) if n > 1 else [s.tau]
-    if any(kind == "time" for _, _, kind in rheology_kind(spec).parameters(n)):
+    if any(kind == "time" for _, _, kind in parameter_info(spec)):
         # relaxation times as parameters: inside their bounds (`default_bounds`), not at them
         lo, hi = math.log(s.tau_min), math.log(s.tau_resolved)
         taus = np.exp(np.clip(np.log(taus), lo + 0.05 * (hi - lo), hi - 0.05 * (hi - lo)))
@@ -389,13 +413,16 @@ def search_points(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
     u = (latin_hypercube(n, dim, seed=seed, designs=20 if n <= MAXIMIN_POINTS else 1)
          if n > 0 else np.zeros((0, dim)))
 
-    def logu(x, lo, hi):
-        return np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x)
-
-    g_inf = logu(u[:, 0], 1e-2 * s.g_relaxed, 1e2 * s.g_relaxed)
-    ratio = logu(u[:, 1], 1.02, 100.0)
-    work = logu(u[:, 2], s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)
-    taus = np.sort(logu(u[:, 3:3 + arms], s.tau_min, s.tau_resolved), axis=1).T
+    # log-uniform coordinates, exp(log lo + (log hi - log lo) x), all columns in one pass:
+    # G_inf, the glass-to-relaxed ratio, the work of adhesion, the relaxation times
+    ranges = ([(1e-2 * s.g_relaxed, 1e2 * s.g_relaxed), (1.02, 100.0),
+               (s.work_of_adhesion * 10**-1.5, s.work_of_adhesion * 10**1.5)]
+              + [(s.tau_min, s.tau_resolved)] * arms)
+    log_lo = np.array([math.log(lo) for lo, _ in ranges])
+    log_span = np.array([math.log(hi) - math.log(lo) for lo, hi in ranges])
+    logu = np.exp(log_lo + log_span * u[:, :3 + arms])
+    g_inf, ratio, work = logu[:, 0], logu[:, 1], logu[:, 2]
+    taus = np.sort(logu[:, 3:], axis=1).T
     if arms > 1:
         # arm shares from the remaining coordinates (sorted-uniform spacings)
         cuts = np.sort(u[:, 3 + arms:3 + 2 * arms - 1], axis=1)
@@ -405,10 +432,13 @@ def search_points(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0
         weights = (weights / weights.sum(axis=1, keepdims=True)).T
     else:
         weights = np.ones((max(arms, 1), len(u)))
-    delta = (u[:, -2] - 0.5) * 0.5 * s.depth
-    f0 = (u[:, -1] - 0.5) * 0.1 * s.force_range
+    # the offsets' coordinates (only where the model has them: `from_physical` reads them
+    # then only)
+    delta = (u[:, -2] - 0.5) * 0.5 * s.depth if spec.contact_offset else 0.0
+    f0 = (u[:, -1] - 0.5) * 0.1 * s.force_range if spec.force_offset else 0.0
     out = from_physical(spec, g_inf, g_inf * ratio, taus, weights, work, delta, f0)
-    return {k: np.broadcast_to(np.asarray(v, dtype=float), (len(u),)) for k, v in out.items()}
+    return {k: v if isinstance(v, np.ndarray) and v.shape == (len(u),) and v.dtype == float
+            else np.broadcast_to(np.asarray(v, dtype=float), (len(u),)) for k, v in out.items()}
 
 
 def search_starts(spec: ModelSpec, s: DataScales, n: int, *, seed: int = 0

@@ -398,7 +398,21 @@ def check_plausible(name: str, value, kind: str, *, magnitude: bool = False) -> 
     """Eager: raise `ValueError` if a concrete `value` lies outside `PLAUSIBLE[kind]` (with
     `magnitude`, only its largest absolute value is checked; zeros and non-finite values
     pass, the latter being the domain checks' business). No-op when the checks are off."""
-    if not plausibility_enabled() or value is None or not is_concrete(value):
+    if not plausibility_enabled() or value is None:
+        return
+    if isinstance(value, float | int | np.floating | np.integer) and not isinstance(value, bool):
+        # a concrete number plainly inside the range: done (per curve of a map)
+        lo, hi, _ = PLAUSIBLE[kind]
+        v = abs(float(value))
+        if v <= hi if magnitude else lo <= v <= hi:
+            return
+    elif isinstance(value, np.ndarray):
+        # concrete; plainly inside the range: done (the common case, per curve of a map)
+        lo, hi, _ = PLAUSIBLE[kind]
+        arr = np.abs(value.astype(float, copy=False))
+        if arr.size and (arr.max() <= hi if magnitude else lo <= arr.min() and arr.max() <= hi):
+            return
+    elif not is_concrete(value):
         return
     arr = np.abs(np.asarray(value, dtype=float)).ravel()
     arr = arr[np.isfinite(arr) & (arr != 0)]

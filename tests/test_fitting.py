@@ -779,6 +779,49 @@ def test_host_prepared_batch_equals_the_device_one_and_bad_probes_always_raise(n
             prepare_curves(noisy, spec, profile=bad)
 
 
+def test_a_curve_prepared_alone_is_its_row_of_a_padded_batch_and_checked_modules(noisy):
+    # the per-curve preparation of a map (one row, nothing to pad, the modules built by
+    # unflattening, `fitting._host`) against the general path (curves of other lengths,
+    # padded) and against equinox's checked construction; the noise's median against
+    # np.median
+    from fitting._parameters import Parameterisation
+    from fitting._prepare import CurveBatch, _median
+
+    spec = make_spec("relaxed", "standard")
+    curves = [noisy[0], dataclasses.replace(noisy[1], time=noisy[1].time[:45],
+                                            displacement=noisy[1].displacement[:45],
+                                            force=noisy[1].force[:45],
+                                            segment=noisy[1].segment[:45])]
+    joint = prepare_curves(curves, spec, radius=R, host=True)
+    rows = ("ts", "drive", "indentation", "force", "lower", "upper", "segment", "index",
+            "contact", "noise", "weight", "valid")
+    for i, c in enumerate(curves):
+        alone = prepare_curves([c], spec, radius=R, host=True)
+        m = alone.ts.shape[1]
+        assert m == len(c) and joint.valid[i, m:].sum() == 0
+        for k in rows:
+            assert getattr(alone, k).dtype == getattr(joint, k).dtype
+            np.testing.assert_array_equal(getattr(alone, k)[0], getattr(joint, k)[i, :m])
+        for k in ("sigma", "depth", "detaches", "stiffness"):
+            assert getattr(alone, k)[0] == getattr(joint, k)[i]
+        fields = {f.name: getattr(alone, f.name) for f in dataclasses.fields(CurveBatch)}
+        checked = CurveBatch(**fields)
+        assert jax.tree.structure(checked) == jax.tree.structure(alone)
+        assert alone.n_samples == m and alone.n_curves == 1
+    info = fitting._spec.parameter_info(spec)
+    param = fitting.make_parameterisation(info, TRUE, fixed={"G1": 5e3}, host=True)
+    checked = Parameterisation(free=param.free, log=param.log, reference=param.reference,
+                               scale=param.scale, lower=param.lower, upper=param.upper)
+    assert jax.tree.structure(checked) == jax.tree.structure(param)
+    z = np.zeros((2, len(param.free)))
+    np.testing.assert_array_equal(param.internal_host(z), checked.internal_host(z))
+    rng = np.random.default_rng(0)
+    for n in (5, 6, 7, 12):
+        x = rng.standard_normal(n)
+        assert _median(x) == float(np.median(x))
+    assert np.isnan(_median(np.array([1.0, np.nan, 2.0])))
+
+
 def test_tabor_parameter_reported_with_its_error_and_flagged_when_small(noisy_fit, tmp_path):
     res = noisy_fit
     mu = {d["name"]: d for d in res.derived}["tabor_mu"]

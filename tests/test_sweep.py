@@ -300,6 +300,35 @@ def test_chunks_give_the_same_result(relaxed):
         np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
 
 
+def test_dataset_is_built_once_while_the_first_chunk_runs(relaxed, monkeypatch):
+    # the dataset (coordinates, attributes, empty summaries) is built once, right after the
+    # first chunk is dispatched, and the results are written into it in place: three chunks
+    # give the same values as the module's sweep (checked against retract and closed forms)
+    from jaxcontact._sweep import _sweep
+
+    calls = []
+    run = _sweep.run_points
+
+    def spy(*args, while_running, **kw):
+        def hook():
+            calls.append(len(calls))
+            while_running()
+
+        return run(*args, while_running=hook, **kw)
+
+    monkeypatch.setattr(_sweep, "run_points", spy)
+    flat = relaxed.stack(point=("G1", "depth", "velocity"))
+    reps = np.resize(np.arange(12), 40)
+    cols = dict(STD, G1=flat.G1.values[reps], depth=flat.depth.values[reps],
+                velocity=flat.velocity.values[reps])
+    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False,
+                  precision="float64")
+    assert calls == [0]
+    assert ds.attrs["chunk_size"] == CHUNK and ds.attrs["devices"] == relaxed.attrs["devices"]
+    for name in [*SUMMARIES, "status", "separation_work_error_J", "separation_work_status"]:
+        np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
+
+
 def test_bad_point_is_isolated(relaxed):
     # eta1 = 1e-320 Pa s underflows to a zero relaxation time in the point's units: that point
     # is invalid; its neighbours in the same chunk are unaffected

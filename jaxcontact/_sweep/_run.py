@@ -154,12 +154,14 @@ _FETCH_BYTES = 2**30
 
 
 def run_points(model, material, profile, names, n_points, columns, *, dtype, curves,
-               chunk_size=None, memory_limit=None, progress=True):
+               chunk_size=None, memory_limit=None, progress=True, while_running=None):
     """Run the model at `n_points` points. `columns(lo, hi)` returns the points `lo:hi` as a
     float64 array `(hi - lo, len(names))` in the points' own units (the columns in the order
     of `names`). Returns `(summaries, curves, info)`: the packed summaries `(len(SUMMARY_FIELDS),
     n_points)` in the compute dtype (rows in the order of `SUMMARY_FIELDS`), name -> `(P,
-    samples)` curves (or None) and the chunking used.
+    samples)` curves (or None) and the chunking used. `while_running()`, if given, is called
+    once right after the first chunk has been dispatched (the host's work that does not need
+    the results, e.g. the dataset's coordinates, overlaps the device's computation).
 
     The chunks' summaries stay on the device and are fetched together at the end (or when
     they reach 1 GiB); the curves, large, are fetched chunk by chunk, each while the next
@@ -226,6 +228,8 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
             done = 0
             for i in range(n_chunks + 1):
                 nxt = launch(i) if i < n_chunks else None  # dispatched asynchronously
+                if i == 0 and while_running is not None:
+                    while_running()
                 if pending is not None:
                     (packed, curve_dev), lo, hi = pending
                     # at most two chunks in flight (this one and the next, just dispatched):

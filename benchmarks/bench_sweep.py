@@ -288,6 +288,68 @@ def paired(old_root, samples, max_batch, rounds=3, devices2=False):
     return res
 
 
+def floor(samples, n=1_000, triples=25):
+    """The computation's floor at `n` points: the numpy baseline, the compiled chunk call
+    alone (the sweep's own program and padded chunk, its input already in host memory), and
+    the whole `jc.sweep` call, interleaved in triples; medians of wall and process CPU time,
+    and of the per-triple ratios."""
+    import jax
+
+    from jaxcontact._sweep import _run
+    from jaxcontact._sweep import _sweep as sweep_module
+
+    model = jc.RelaxedStart(samples=samples)
+    pts = points(n)
+    seen = {}
+    real = sweep_module.run_points
+
+    def spy(*args, **kw):
+        seen["args"] = args
+        return real(*args, **kw)
+
+    sweep_module.run_points = spy
+    try:
+        run_sweep(pts, model)
+    finally:
+        sweep_module.run_points = real
+    m, material, profile, names, n_points, columns = seen["args"]
+    chunk = _run.chunk_size_for(m, getattr(material, "arms", 1), 8, False, n_points, 1, None,
+                                jax.local_devices())
+    fn, _ = _run._compiled(m, material, profile, names, False, tuple(jax.devices()), "float64")
+    host = np.empty((chunk, len(names)))
+    host[:n] = columns(0, n)
+    host[n:] = host[0]
+
+    def compiled():
+        with jax.enable_x64(True):
+            np.asarray(fn(host)[0])
+
+    def cpu():
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    compiled()
+    calls = (("numpy", lambda: numpy_chunked(pts, samples)), ("compiled", compiled),
+             ("sweep", lambda: run_sweep(pts, model)))
+    wall, proc = {k: [] for k, _ in calls}, {k: [] for k, _ in calls}
+    for _ in range(triples):
+        for k, f in calls:
+            c0, t0 = cpu(), time.perf_counter()
+            f()
+            wall[k].append(time.perf_counter() - t0)
+            proc[k].append(cpu() - c0)
+    med = statistics.median
+    ratio_c = med([a / b for a, b in zip(wall["numpy"], wall["compiled"], strict=True)])
+    ratio_s = med([a / b for a, b in zip(wall["numpy"], wall["sweep"], strict=True)])
+    host_ms = 1e3 * med([a - b for a, b in zip(wall["sweep"], wall["compiled"], strict=True)])
+    print(f"\n{n:,} points (chunk {chunk}): numpy {1e3 * med(wall['numpy']):.1f} ms (CPU "
+          f"{1e3 * med(proc['numpy']):.1f}), compiled call {1e3 * med(wall['compiled']):.2f} ms "
+          f"(CPU {1e3 * med(proc['compiled']):.2f}), sweep {1e3 * med(wall['sweep']):.2f} ms "
+          f"(CPU {1e3 * med(proc['sweep']):.2f}); numpy / compiled call {ratio_c:.1f}x, "
+          f"numpy / sweep {ratio_s:.1f}x, sweep - compiled call {host_ms:.2f} ms", flush=True)
+    return wall, proc
+
+
 def relative(a, b):
     ok = np.isfinite(a) & np.isfinite(b) & (b != 0)
     return np.abs(a[ok] / b[ok] - 1)
@@ -348,7 +410,12 @@ def main():
     ap.add_argument("--rounds", type=int, default=3, help="rounds of --paired")
     ap.add_argument("--devices2", action="store_true",
                     help="--paired also runs this checkout on 2 virtual CPU devices")
+    ap.add_argument("--floor", action="store_true",
+                    help="only the computation's floor at 10^3 points (see `floor`)")
     args = ap.parse_args()
+    if args.floor:
+        floor(args.samples)
+        return
     if args.paired:
         paired(os.path.abspath(args.paired), args.samples, min(args.max_batch, 100_000),
                args.rounds, args.devices2)

@@ -221,6 +221,135 @@ def compare(old_root, samples, batches, rounds=2, repeats=5):
     return times, tn
 
 
+PAIRED_CHILD = """
+import json, os, statistics, sys, time, resource
+sys.path.insert(0, os.path.join(os.getcwd(), "benchmarks"))
+import jax
+import jaxcontact as jc
+from bench_sweep import points, numpy_chunked
+m = jc.RelaxedStart(samples={samples})
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF); return r.ru_utime + r.ru_stime
+out = {{"devices": len(jax.devices())}}
+for b, pairs, b2b in ((1000, 20, 30), (10000, 6, 10), (100000, 2, 3)):
+    if b > {max_batch}:
+        continue
+    pts = points(b)
+    jc.sweep(points=pts, model=m, progress=False); jc.sweep(points=pts, model=m, progress=False)
+    d = dict(sweep=[], cpu=[], numpy=[], ratio=[], b2b=[])
+    for _ in range(pairs):
+        t0 = time.perf_counter(); numpy_chunked(pts, {samples}); tn = time.perf_counter() - t0
+        c0 = cpu(); t0 = time.perf_counter(); jc.sweep(points=pts, model=m, progress=False)
+        ts = time.perf_counter() - t0
+        d["cpu"].append(cpu() - c0); d["sweep"].append(ts); d["numpy"].append(tn)
+        d["ratio"].append(tn / ts)
+    for _ in range(b2b):
+        t0 = time.perf_counter(); jc.sweep(points=pts, model=m, progress=False)
+        d["b2b"].append(time.perf_counter() - t0)
+    out[b] = d
+print(json.dumps(out))
+"""
+
+
+def paired(old_root, samples, max_batch, rounds=3, devices2=False):
+    """Relaxed summaries of another checkout (`old_root`) and this one, each in child
+    processes run with that checkout as working directory and PYTHONPATH, alternated over
+    `rounds`; inside each child, per batch, the numpy baseline and the sweep alternate (the
+    order of `batch_table`: a sweep right after a numpy run), the ratio taken per pair, then
+    back-to-back sweeps. With `devices2` also this checkout on 2 virtual CPU devices. Medians;
+    the sweep's process CPU time too (less sensitive to other jobs on the machine)."""
+    new_root = os.path.dirname(HERE)
+    variants = [("before", old_root, {}), ("after", new_root, {})]
+    if devices2:
+        variants.append(("after, 2 CPU devices", new_root,
+                         {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}))
+    res = {label: {} for label, _, _ in variants}
+    for r in range(rounds):
+        for label, root, extra in (variants if r % 2 == 0 else variants[::-1]):
+            env = dict(os.environ, PYTHONPATH=root, **extra)
+            code = PAIRED_CHILD.format(samples=samples, max_batch=max_batch)
+            out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                                 text=True, check=True, cwd=root)
+            got = json.loads(out.stdout.strip().splitlines()[-1])
+            for b, d in got.items():
+                if b != "devices":
+                    for k, vals in d.items():
+                        res[label].setdefault(int(b), {}).setdefault(k, []).extend(vals)
+    med = statistics.median
+    print("\n| version | curves | sweep after numpy [ms] | its CPU time [ms] | back to back [ms] "
+          "| curves/s | numpy [ms] | numpy / sweep (median of pairs) | numpy / back to back |"
+          "\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for label, rows in res.items():
+        for b, d in sorted(rows.items()):
+            t, c, bb, n = med(d["sweep"]), med(d["cpu"]), med(d["b2b"]), med(d["numpy"])
+            print(f"| {label} | {b:,} | {1e3 * t:.2f} | {1e3 * c:.2f} | {1e3 * bb:.2f} | "
+                  f"{b / t:.3g} | {1e3 * n:.1f} | {med(d['ratio']):.1f}x | {n / bb:.1f}x |",
+                  flush=True)
+    return res
+
+
+def floor(samples, n=1_000, triples=25):
+    """The computation's floor at `n` points: the numpy baseline, the compiled chunk call
+    alone (the sweep's own program and padded chunk, its input already in host memory), and
+    the whole `jc.sweep` call, interleaved in triples; medians of wall and process CPU time,
+    and of the per-triple ratios."""
+    import jax
+
+    from jaxcontact._sweep import _run
+    from jaxcontact._sweep import _sweep as sweep_module
+
+    model = jc.RelaxedStart(samples=samples)
+    pts = points(n)
+    seen = {}
+    real = sweep_module.run_points
+
+    def spy(*args, **kw):
+        seen["args"] = args
+        return real(*args, **kw)
+
+    sweep_module.run_points = spy
+    try:
+        run_sweep(pts, model)
+    finally:
+        sweep_module.run_points = real
+    m, material, profile, names, n_points, columns = seen["args"]
+    chunk = _run.chunk_size_for(m, getattr(material, "arms", 1), 8, False, n_points, 1, None,
+                                jax.local_devices())
+    fn, _ = _run._compiled(m, material, profile, names, False, tuple(jax.devices()), "float64")
+    host = np.empty((chunk, len(names)))
+    host[:n] = columns(0, n)
+    host[n:] = host[0]
+
+    def compiled():
+        with jax.enable_x64(True):
+            np.asarray(fn(host)[0])
+
+    def cpu():
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    compiled()
+    calls = (("numpy", lambda: numpy_chunked(pts, samples)), ("compiled", compiled),
+             ("sweep", lambda: run_sweep(pts, model)))
+    wall, proc = {k: [] for k, _ in calls}, {k: [] for k, _ in calls}
+    for _ in range(triples):
+        for k, f in calls:
+            c0, t0 = cpu(), time.perf_counter()
+            f()
+            wall[k].append(time.perf_counter() - t0)
+            proc[k].append(cpu() - c0)
+    med = statistics.median
+    ratio_c = med([a / b for a, b in zip(wall["numpy"], wall["compiled"], strict=True)])
+    ratio_s = med([a / b for a, b in zip(wall["numpy"], wall["sweep"], strict=True)])
+    host_ms = 1e3 * med([a - b for a, b in zip(wall["sweep"], wall["compiled"], strict=True)])
+    print(f"\n{n:,} points (chunk {chunk}): numpy {1e3 * med(wall['numpy']):.1f} ms (CPU "
+          f"{1e3 * med(proc['numpy']):.1f}), compiled call {1e3 * med(wall['compiled']):.2f} ms "
+          f"(CPU {1e3 * med(proc['compiled']):.2f}), sweep {1e3 * med(wall['sweep']):.2f} ms "
+          f"(CPU {1e3 * med(proc['sweep']):.2f}); numpy / compiled call {ratio_c:.1f}x, "
+          f"numpy / sweep {ratio_s:.1f}x, sweep - compiled call {host_ms:.2f} ms", flush=True)
+    return wall, proc
+
+
 def relative(a, b):
     ok = np.isfinite(a) & np.isfinite(b) & (b != 0)
     return np.abs(a[ok] / b[ok] - 1)
@@ -274,7 +403,23 @@ def main():
     ap.add_argument("--compare", metavar="DIR", default=None,
                     help="also time the relaxed summaries of another checkout (e.g. `git "
                          "archive` of the previous commit unpacked in DIR) against this one")
+    ap.add_argument("--paired", metavar="DIR", default=None,
+                    help="relaxed summaries of another checkout (DIR) and this one at 10^3-10^5 "
+                         "points, each sweep paired with a numpy run (child processes "
+                         "alternated; see `paired`); skips the other sections")
+    ap.add_argument("--rounds", type=int, default=3, help="rounds of --paired")
+    ap.add_argument("--devices2", action="store_true",
+                    help="--paired also runs this checkout on 2 virtual CPU devices")
+    ap.add_argument("--floor", action="store_true",
+                    help="only the computation's floor at 10^3 points (see `floor`)")
     args = ap.parse_args()
+    if args.floor:
+        floor(args.samples)
+        return
+    if args.paired:
+        paired(os.path.abspath(args.paired), args.samples, min(args.max_batch, 100_000),
+               args.rounds, args.devices2)
+        return
     skip = set(args.skip.split(","))
     if args.quick:
         args.max_batch = min(args.max_batch, 100_000)

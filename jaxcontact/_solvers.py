@@ -59,7 +59,17 @@ def _traced(tree) -> bool:
     """Whether `tree` holds a JAX tracer or the call runs inside a `jit` trace."""
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree)):
         return True
+    if _trace_state_clean is not None and _trace_state_clean():
+        # no transformation is running: not inside a trace (the same answer as below, without
+        # an eager dispatch of ~0.1 ms on the CPU per entry-function call)
+        return False
     return isinstance(jnp.zeros(()), jax.core.Tracer)
+
+
+try:  # JAX's own test for "no trace active" (absent in other versions: the dispatch above)
+    from jax._src.core import trace_state_clean as _trace_state_clean
+except ImportError:  # pragma: no cover - other JAX versions
+    _trace_state_clean = None
 
 
 def float64_scope(fn):

@@ -91,6 +91,32 @@ def test_elastic_jkr_closed_forms():
     np.testing.assert_allclose(ds.jumpoff_time_s.values, (depths - d_j) / 1e-4, rtol=1e-10)
 
 
+def test_host_threads_path_matches_the_jkr_closed_form(monkeypatch):
+    # sweeps of >= 2^17 points prepare the chunks' columns ahead and scale the summaries in
+    # host threads; smaller ones (every other test here) in the calling thread. The threaded
+    # path forced on a small elastic sweep in two chunks, against the JKR closed forms
+    from jaxcontact._sweep import _run
+
+    monkeypatch.setattr(_run, "_THREADS_MIN_POINTS", 1)
+    monkeypatch.setattr(_run, "_HOST_THREADS", 2)
+    assert _run.host_threads(4) == 2
+    G, dg, R = 1e5, 0.05, 1e-4
+    depths = np.array([3e-7, 1e-6, 4e-6, 3e-5])
+    ds = jc.sweep({"G_inf": G, "work_of_adhesion": dg, "R": R, "depth": depths,
+                   "velocity": 1e-4}, model=jc.RelaxedStart(samples=2000), chunk_size=2,
+                  progress=False, precision="float64")
+    assert ds.attrs["chunk_size"] == 2
+    assert (ds.status == int(jc.RESULTS.detached._value)).all()
+    W = np.array([jkr_separation_work(G, dg, R, d) for d in depths])
+    np.testing.assert_allclose(ds.separation_work_J.values, W, rtol=1e-12)
+    c = np.sqrt(np.pi * dg * G / 2) / G
+    a_j = np.minimum(np.sqrt(R * depths), (c * R / 4) ** (2 / 3))
+    d_j = a_j**2 / R - c * np.sqrt(a_j)
+    np.testing.assert_allclose(ds.jumpoff_force_N.values, 8 * G * (a_j * d_j - a_j**3 / (3 * R)),
+                               rtol=1e-12)
+    np.testing.assert_allclose(ds.jumpoff_time_s.values, (depths - d_j) / 1e-4, rtol=1e-10)
+
+
 def test_elastic_flat_punch_kendall():
     # an elastic flat punch (E* = 4G) stays pinned to the jump-off at d_j = -c sqrt(a):
     # Kendall's pull-off force -sqrt(8 pi a^3 E* dgamma) and the work
@@ -271,6 +297,35 @@ def test_chunks_give_the_same_result(relaxed):
                   precision="float64")
     assert ds.attrs["chunk_size"] == CHUNK
     for name in SUMMARIES:
+        np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
+
+
+def test_dataset_is_built_once_while_the_first_chunk_runs(relaxed, monkeypatch):
+    # the dataset (coordinates, attributes, empty summaries) is built once, right after the
+    # first chunk is dispatched, and the results are written into it in place: three chunks
+    # give the same values as the module's sweep (checked against retract and closed forms)
+    from jaxcontact._sweep import _sweep
+
+    calls = []
+    run = _sweep.run_points
+
+    def spy(*args, while_running, **kw):
+        def hook():
+            calls.append(len(calls))
+            while_running()
+
+        return run(*args, while_running=hook, **kw)
+
+    monkeypatch.setattr(_sweep, "run_points", spy)
+    flat = relaxed.stack(point=("G1", "depth", "velocity"))
+    reps = np.resize(np.arange(12), 40)
+    cols = dict(STD, G1=flat.G1.values[reps], depth=flat.depth.values[reps],
+                velocity=flat.velocity.values[reps])
+    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False,
+                  precision="float64")
+    assert calls == [0]
+    assert ds.attrs["chunk_size"] == CHUNK and ds.attrs["devices"] == relaxed.attrs["devices"]
+    for name in [*SUMMARIES, "status", "separation_work_error_J", "separation_work_status"]:
         np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
 
 

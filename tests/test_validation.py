@@ -486,6 +486,30 @@ def test_import_leaves_x64_alone_and_eager_calls_stay_float64():
     assert float(rmax) <= np.sqrt(12.0) + 1e-6  # only the samples at the jump-off differ
 
 
+def test_traced_answers_as_an_eager_zeros_does():
+    # `float64_scope` asks `_traced` whether a call runs inside a trace; without one active it
+    # answers at once (JAX's trace state), else as `jnp.zeros(())` being a tracer, its
+    # definition, in every context: eager, jit, vmap (constant or traced arguments), grad
+    from jaxcontact._solvers import _traced
+
+    seen = []
+
+    def probe(*args):
+        seen.append((_traced((args, {})),
+                     any(isinstance(a, jax.core.Tracer) for a in args)
+                     or isinstance(jnp.zeros(()), jax.core.Tracer)))
+        return 0.0
+
+    probe(1.0)
+    jax.jit(lambda x: probe() + x)(1.0)
+    jax.jit(lambda x: probe(x) + x)(1.0)
+    jax.vmap(lambda x: probe() + x)(jnp.ones(2))
+    jax.vmap(lambda x: probe(x) + x)(jnp.ones(2))
+    jax.grad(lambda x: probe() + x)(1.0)
+    got, definition = zip(*seen, strict=True)
+    assert got == definition == (False, True, True, False, True, False)
+
+
 # --------------------------------------------------------------------------------------
 # odd geometry: a contact radius beyond what the profile describes, or kilometres wide
 # --------------------------------------------------------------------------------------

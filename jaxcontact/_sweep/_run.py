@@ -54,6 +54,18 @@ _MAX_CHUNK = 2**20
 # its array operations, so they run side by side and alongside the device)
 _HOST_THREADS = max(1, min(8, (os.cpu_count() or 1)))
 
+# host threads only for sweeps of at least this many points: starting a pool costs 0.5-2.3
+# ms on a busy 2-core CPU (more than a 10^3-point sweep's whole host path), while the work
+# it spreads (the columns of a chunk, the summaries' units) takes microseconds per 10^4
+# points (benchmarks/results/sweep.md, section 8)
+_THREADS_MIN_POINTS = 2**17
+
+
+def host_threads(n_points: int) -> int:
+    """Threads for the host's work on `n_points` points (1: none, the work in the calling
+    thread)."""
+    return _HOST_THREADS if n_points >= _THREADS_MIN_POINTS else 1
+
 
 def default_precision() -> str:
     """float32 on accelerators (GPU, TPU), float64 on the CPU."""
@@ -129,7 +141,11 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
 
 
 def _fetch(outs):
-    """The outputs of several chunks to the host, in one call (one gather across processes)."""
+    """The outputs of several chunks to the host, in one call (one gather across processes).
+    One process: each array copied by `np.asarray` (`jax.device_get` of a list costs ~0.5
+    ms more on the CPU, a noticeable part of a small sweep)."""
+    if jax.process_count() == 1:
+        return jax.tree.map(np.asarray, outs)
     return jax.device_get(allgather(outs))
 
 
@@ -138,12 +154,14 @@ _FETCH_BYTES = 2**30
 
 
 def run_points(model, material, profile, names, n_points, columns, *, dtype, curves,
-               chunk_size=None, memory_limit=None, progress=True):
+               chunk_size=None, memory_limit=None, progress=True, while_running=None):
     """Run the model at `n_points` points. `columns(lo, hi)` returns the points `lo:hi` as a
     float64 array `(hi - lo, len(names))` in the points' own units (the columns in the order
     of `names`). Returns `(summaries, curves, info)`: the packed summaries `(len(SUMMARY_FIELDS),
     n_points)` in the compute dtype (rows in the order of `SUMMARY_FIELDS`), name -> `(P,
-    samples)` curves (or None) and the chunking used.
+    samples)` curves (or None) and the chunking used. `while_running()`, if given, is called
+    once right after the first chunk has been dispatched (the host's work that does not need
+    the results, e.g. the dataset's coordinates, overlaps the device's computation).
 
     The chunks' summaries stay on the device and are fetched together at the end (or when
     they reach 1 GiB); the curves, large, are fetched chunk by chunk, each while the next
@@ -175,8 +193,9 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
             return host
 
         # the columns of the next chunks are prepared ahead in threads (at most
-        # `_HOST_THREADS` chunks of host memory waiting)
-        pool = ThreadPoolExecutor(_HOST_THREADS) if n_chunks > 1 else None
+        # `_HOST_THREADS` chunks of host memory waiting); small sweeps in this thread
+        threads = host_threads(n_points)
+        pool = ThreadPoolExecutor(threads) if n_chunks > 1 and threads > 1 else None
         ahead: dict = {}
 
         def launch(i):
@@ -190,7 +209,9 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
             lo = i * chunk
             hi = min(lo + chunk, n_points)
             if jax.process_count() == 1:
-                return fn(jax.device_put(host, sharding)), lo, hi
+                # the host array straight into the compiled call, which transfers it to
+                # `sharding` (its input sharding) in its own dispatch
+                return fn(host), lo, hi
             cols = jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
             return fn(cols), lo, hi
 
@@ -207,6 +228,8 @@ def run_points(model, material, profile, names, n_points, columns, *, dtype, cur
             done = 0
             for i in range(n_chunks + 1):
                 nxt = launch(i) if i < n_chunks else None  # dispatched asynchronously
+                if i == 0 and while_running is not None:
+                    while_running()
                 if pending is not None:
                     (packed, curve_dev), lo, hi = pending
                     # at most two chunks in flight (this one and the next, just dispatched):

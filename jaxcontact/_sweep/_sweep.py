@@ -6,6 +6,7 @@ import datetime
 import functools
 from concurrent.futures import ThreadPoolExecutor
 
+import jax
 import numpy as np
 
 from .._solution import RESULTS
@@ -14,7 +15,7 @@ from .._validate import PLAUSIBLE, check_plausible, plain, plausibility_enabled
 from .._version import __version__
 from ._models import _MIN_TENSION_SAMPLES, AbstractSweepModel, RelaxedStart
 from ._parameters import INVALID_REASONS, parameter_info, parse_spec, range_text, scale_factors
-from ._run import _HOST_THREADS, SUMMARY_FIELDS, default_precision, run_points
+from ._run import SUMMARY_FIELDS, default_precision, host_threads, run_points
 
 __all__ = ["sweep", "SUMMARIES"]
 
@@ -46,6 +47,11 @@ _UNITS = {"force": "N", "length": "m", "time": "s", "work": "J"}
 
 
 def _status_attrs():
+    return dict(_status_attrs_once())
+
+
+@functools.lru_cache(maxsize=1)
+def _status_attrs_once():
     items = sorted(RESULTS._name_to_item.items(), key=lambda kv: int(kv[1]._value))
     return dict(
         long_name="status of the point (RESULTS code)",
@@ -92,6 +98,13 @@ def _first_problem(spec, flags) -> str:
     i = int(np.flatnonzero(f)[0])
     return (f"`{name}` must lie in {range_text(name)} and be plausible; got "
             f"{spec.coords[name][i]!r} (entry {i}: {INVALID_REASONS[int(f[i])]}).")
+
+
+@functools.partial(jax.jit, static_argnames="family")
+def _touch_radius(family, value, depth):
+    """The contact radius at `depth` of the profile `family` with its parameter `value` (one
+    compiled call: built eagerly, the profile and its radius cost ~0.8 ms of dispatches)."""
+    return family.build({family.name: value}).contact_radius(depth)
 
 
 @functools.lru_cache(maxsize=32)
@@ -227,7 +240,7 @@ def sweep(
             # wide (a cone's half-angle near pi/2) is a unit mistake
             ext = {n: (np.max(a) if np.ndim(a) else a)
                    for n, a in {**spec.coords, **spec.fixed}.items()}
-            touch = spec.profile.build(ext).contact_radius(ext["depth"])
+            touch = _touch_radius(spec.profile, ext[spec.profile.name], ext["depth"])
             check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
     bad_param, bad_reason = _point_flags(spec, flags)
     good = None if bad_param is None else bad_param == 0
@@ -257,91 +270,133 @@ def sweep(
             out[~good[lo:hi]] = columns(substitute, substitute + 1)[0]
         return out
 
+    # ---- the dataset: built while the first chunk computes (it does not need the results),
+    # its summaries filled in place afterwards --------------------------------------------------
+    dims = spec.dims
+    built = {}
+
+    def build():
+        with np.errstate(all="ignore"):  # flagged points: NaN below
+            length = v["depth"]
+            modulus = spec.material.relaxed_modulus(v)
+            tref = v["depth"] / v["velocity"]
+        built["units"] = {"force": modulus * length**2, "length": length, "time": tref,
+                          "work": modulus * length**3}
+        coords = {}
+        for name, values in spec.coords.items():
+            info = parameter_info(name)
+            dim = name if spec.grid else "point"
+            coords[name] = (dim, values, dict(units=info.unit, long_name=info.long_name))
+        for name, (dim, values) in spec.derived.items():
+            info = parameter_info(name)
+            coords[name] = (dim, values, dict(units=info.unit, long_name=info.long_name))
+        for name, value in spec.fixed.items():
+            info = parameter_info(name)
+            coords[name] = ((), value, dict(units=info.unit,
+                                            long_name=info.long_name + " (fixed)"))
+        data = {}
+        for var, (_, kind, meaning) in SUMMARIES.items():
+            data[var] = (dims, np.empty(spec.shape), dict(units=_UNITS[kind], long_name=meaning))
+        data["status"] = (dims, np.empty(spec.shape, np.int8), _status_attrs())
+        data["separation_work_error_J"] = (dims, np.empty(spec.shape), dict(
+            units="J", long_name="estimated sampling error of separation_work_J (before it is "
+            "withheld): |W(h) - W(2h)| / (2^1.5 - 1) from every sample and every other one; "
+            f"inf with fewer than {_MIN_TENSION_SAMPLES} lift samples under tension; 0 for the "
+            "exact relaxed start"))
+        data["separation_work_status"] = (dims, np.empty(spec.shape, np.int8), dict(
+            long_name="whether separation_work_J is within the model's work_rtol",
+            work_rtol=float(model.work_rtol), flag_values=np.array([0, 1, 2], np.int8),
+            flag_meanings="converged undersampled none",
+            description="undersampled: the estimated sampling error exceeds work_rtol times "
+                        "the work, which is then NaN (more `samples` fix it); none: no work, "
+                        "NaN (an error status, or no jump-off within the lift)"))
+        if bad_param is not None:
+            names_flagged = list(flags)
+            data["invalid_parameter"] = (dims, bad_param.reshape(spec.shape), dict(
+                long_name="the first parameter of the point outside its range (0: none)",
+                flag_values=np.arange(len(names_flagged) + 1, dtype=np.int8),
+                flag_meanings=" ".join(["none", *names_flagged]),
+                ranges="; ".join(f"{n}: {range_text(n)}" for n in names_flagged)))
+            data["invalid_reason"] = (dims, bad_reason.reshape(spec.shape), dict(
+                long_name="why that parameter was refused (0: valid point)",
+                flag_values=np.arange(len(INVALID_REASONS) + 1, dtype=np.int8),
+                flag_meanings=" ".join(["valid", *(m.split(" (")[0].replace(" ", "_")
+                                                    for m in INVALID_REASONS.values())]),
+                description="; ".join(f"{k}: {m}" for k, m in INVALID_REASONS.items())))
+        attrs = dict(
+            title="jaxcontact forward sweep",
+            model=model.name,
+            model_repr=_model_repr(model),
+            samples=int(model.samples),
+            duration_factor=float(model.duration_factor),
+            precision=precision,
+            chunk_size=0,  # the run's values: set below
+            devices=0,
+            processes=0,
+            jaxcontact_version=__version__,
+            created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            conventions="SI units; indentation positive into the sample; force compressive "
+                        "positive, adhesive negative; moduli are shear moduli of an "
+                        "incompressible half-space",
+        )
+        if hasattr(model, "cells"):
+            attrs["cells"] = int(model.cells)
+        built["ds"] = xr.Dataset(data, coords=coords, attrs=attrs)
+
     packed, curve_data, run_info = run_points(
         model, spec.material, spec.profile, names, n_points, columns,
         dtype=np.dtype(precision), curves=curves, chunk_size=chunk_size,
-        memory_limit=memory_limit, progress=progress,
+        memory_limit=memory_limit, progress=progress, while_running=build,
     )
-    with np.errstate(all="ignore"):  # flagged points: NaN below
-        length = v["depth"]
-        modulus = spec.material.relaxed_modulus(v)
-        tref = v["depth"] / v["velocity"]
-    units = {"force": modulus * length**2, "length": length, "time": tref,
-             "work": modulus * length**3}
+    ds, units = built["ds"], built["units"]
+    ds.attrs.update(chunk_size=int(run_info["chunk_size"]), devices=int(run_info["devices"]),
+                    processes=int(run_info["processes"]))
 
-    # ---- the dataset ------------------------------------------------------------------------
-    dims = spec.dims
+    def flat(var):
+        """The dataset's own array of `var`, as a flat view to write the results into."""
+        target = ds.variables[var].data
+        assert target.flags.c_contiguous  # np.empty above: reshape is a view
+        return target.reshape(-1)
+
     row = {f: i for i, f in enumerate(SUMMARY_FIELDS)}
-    status = packed[row["status"]].astype(np.int8)
+    status = flat("status")
+    status[...] = packed[row["status"]]
     if good is not None:
         status[~good] = int(RESULTS.invalid_input._value)
     failed = (status != int(RESULTS.detached._value)) & (status != int(RESULTS.in_contact._value))
     any_failed = bool(failed.any())
-    # each summary in float64 and its SI unit in one pass, the fields side by side in
-    # threads (numpy releases the GIL; no temporaries per field)
+
+    # each summary in float64 and its SI unit in one pass, straight into the dataset (large
+    # sweeps: the fields side by side in threads; numpy releases the GIL)
     def si(item):
-        field, kind, _ = item
-        x = np.multiply(packed[row[field]], units[kind], dtype=np.float64)
+        var, (field, kind, _) = item
+        x = flat(var)
+        np.multiply(packed[row[field]], units[kind], out=x, dtype=np.float64)
         if any_failed:
             x[failed] = np.nan
-        return x
 
-    with ThreadPoolExecutor(min(len(SUMMARIES), _HOST_THREADS)) as pool:
-        scaled = dict(zip(SUMMARIES, pool.map(si, SUMMARIES.values()), strict=True))
-    coords = {}
-    for name, values in spec.coords.items():
-        info = parameter_info(name)
-        dim = name if spec.grid else "point"
-        coords[name] = (dim, values, dict(units=info.unit, long_name=info.long_name))
-    for name, (dim, values) in spec.derived.items():
-        info = parameter_info(name)
-        coords[name] = (dim, values, dict(units=info.unit, long_name=info.long_name))
-    for name, value in spec.fixed.items():
-        info = parameter_info(name)
-        coords[name] = ((), value, dict(units=info.unit, long_name=info.long_name + " (fixed)"))
-    data = {}
-    for var, (_, kind, meaning) in SUMMARIES.items():
-        data[var] = (dims, scaled[var].reshape(spec.shape),
-                     dict(units=_UNITS[kind], long_name=meaning))
-    data["status"] = (dims, status.reshape(spec.shape), _status_attrs())
+    threads = min(len(SUMMARIES), host_threads(n_points))
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(si, SUMMARIES.items()))
+    else:
+        for item in SUMMARIES.items():
+            si(item)
     # the separation work's sampling error (the history model; 0 for the exact relaxed start)
-    work = data["separation_work_J"][1]
-    error = packed[row["separation_work_error"]].astype(np.float64) * np.abs(units["work"])
-    error = error.reshape(spec.shape)
+    work = flat("separation_work_J")
+    error = flat("separation_work_error_J")
+    np.multiply(packed[row["separation_work_error"]], np.abs(units["work"]), out=error,
+                dtype=np.float64)
     rtol = float(model.work_rtol)
     with np.errstate(invalid="ignore"):
         converged = error <= rtol * np.abs(work)
     # none where there is no work or no estimate (no jump-off within the lift: the work
     # would stop short of it)
     has_work = np.isfinite(work) & ~np.isnan(error)
-    work_status = np.where(has_work, np.where(converged, 0, 1), 2).astype(np.int8)
+    work_status = flat("separation_work_status")
+    work_status[...] = np.where(has_work, np.where(converged, 0, 1), 2)
     work[work_status != 0] = np.nan  # a work the samples cannot give within `work_rtol`
-    error[failed.reshape(spec.shape)] = np.nan
-    data["separation_work_error_J"] = (dims, error, dict(
-        units="J", long_name="estimated sampling error of separation_work_J (before it is "
-        "withheld): |W(h) - W(2h)| / (2^1.5 - 1) from every sample and every other one; inf "
-        f"with fewer than {_MIN_TENSION_SAMPLES} lift samples under tension; 0 for the exact "
-        "relaxed start"))
-    data["separation_work_status"] = (dims, work_status, dict(
-        long_name="whether separation_work_J is within the model's work_rtol",
-        work_rtol=rtol, flag_values=np.array([0, 1, 2], np.int8),
-        flag_meanings="converged undersampled none",
-        description="undersampled: the estimated sampling error exceeds work_rtol times the "
-                    "work, which is then NaN (more `samples` fix it); none: no work, NaN (an "
-                    "error status, or no jump-off within the lift)"))
-    if bad_param is not None:
-        names_flagged = list(flags)
-        data["invalid_parameter"] = (dims, bad_param.reshape(spec.shape), dict(
-            long_name="the first parameter of the point outside its range (0: none)",
-            flag_values=np.arange(len(names_flagged) + 1, dtype=np.int8),
-            flag_meanings=" ".join(["none", *names_flagged]),
-            ranges="; ".join(f"{n}: {range_text(n)}" for n in names_flagged)))
-        data["invalid_reason"] = (dims, bad_reason.reshape(spec.shape), dict(
-            long_name="why that parameter was refused (0: valid point)",
-            flag_values=np.arange(len(INVALID_REASONS) + 1, dtype=np.int8),
-            flag_meanings=" ".join(["valid", *(m.split(" (")[0].replace(" ", "_")
-                                                for m in INVALID_REASONS.values())]),
-            description="; ".join(f"{k}: {m}" for k, m in INVALID_REASONS.items())))
+    error[failed] = np.nan
     if curves:
         for var, (field, kind, meaning) in _CURVES.items():
             # in place: the curves are large (10^5 x 500 samples: 400 MB per field), and a
@@ -350,24 +405,6 @@ def sweep(
             np.multiply(x, np.reshape(units[kind], (-1, 1)), out=x)
             if good is not None:
                 x[~good] = np.nan
-            data[var] = (dims + ("sample",), x.reshape(spec.shape + (x.shape[-1],)),
-                         dict(units=_UNITS[kind], long_name=meaning))
-    attrs = dict(
-        title="jaxcontact forward sweep",
-        model=model.name,
-        model_repr=_model_repr(model),
-        samples=int(model.samples),
-        duration_factor=float(model.duration_factor),
-        precision=precision,
-        chunk_size=int(run_info["chunk_size"]),
-        devices=int(run_info["devices"]),
-        processes=int(run_info["processes"]),
-        jaxcontact_version=__version__,
-        created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        conventions="SI units; indentation positive into the sample; force compressive "
-                    "positive, adhesive negative; moduli are shear moduli of an "
-                    "incompressible half-space",
-    )
-    if hasattr(model, "cells"):
-        attrs["cells"] = int(model.cells)
-    return xr.Dataset(data, coords=coords, attrs=attrs)
+            ds[var] = (dims + ("sample",), x.reshape(spec.shape + (x.shape[-1],)),
+                       dict(units=_UNITS[kind], long_name=meaning))
+    return ds

@@ -287,14 +287,19 @@ def test_default_cpu_chunk_fits_the_models_budget(model, curves):
     assert used >= 0.2 * model.cpu_chunk_budget(curves)
 
 
-def test_chunks_give_the_same_result(relaxed):
-    # 40 points in chunks of 16: three chunks, the last one padded
+def _forty_points(relaxed):
+    """40 points of the module's grid (its 12 repeated) in chunks of 16: three chunks, the
+    last one padded; `(flat grid, indices, sweep)`."""
     flat = relaxed.stack(point=("G1", "depth", "velocity"))
     reps = np.resize(np.arange(12), 40)
     cols = dict(STD, G1=flat.G1.values[reps], depth=flat.depth.values[reps],
                 velocity=flat.velocity.values[reps])
-    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False,
-                  precision="float64")
+    return flat, reps, jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK,
+                                progress=False, precision="float64")
+
+
+def test_chunks_give_the_same_result(relaxed):
+    flat, reps, ds = _forty_points(relaxed)
     assert ds.attrs["chunk_size"] == CHUNK
     for name in SUMMARIES:
         np.testing.assert_array_equal(ds[name].values, flat[name].values[reps])
@@ -317,12 +322,7 @@ def test_dataset_is_built_once_while_the_first_chunk_runs(relaxed, monkeypatch):
         return run(*args, while_running=hook, **kw)
 
     monkeypatch.setattr(_sweep, "run_points", spy)
-    flat = relaxed.stack(point=("G1", "depth", "velocity"))
-    reps = np.resize(np.arange(12), 40)
-    cols = dict(STD, G1=flat.G1.values[reps], depth=flat.depth.values[reps],
-                velocity=flat.velocity.values[reps])
-    ds = jc.sweep(points=cols, model=RELAXED, chunk_size=CHUNK, progress=False,
-                  precision="float64")
+    flat, reps, ds = _forty_points(relaxed)
     assert calls == [0]
     assert ds.attrs["chunk_size"] == CHUNK and ds.attrs["devices"] == relaxed.attrs["devices"]
     for name in [*SUMMARIES, "status", "separation_work_error_J", "separation_work_status"]:

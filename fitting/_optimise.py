@@ -112,6 +112,7 @@ from ._start import (
     initial_guess,
     local_starts_batch,
     nested_starts,
+    probe_radius,
     search_points,
 )
 from ._uncertainty import (
@@ -861,13 +862,14 @@ def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions, 
     coordinates `us`, padded to `size` problems (the last one repeated): one compilation
     serves every chunk. `model`: evaluate the model too (not carried by the search)."""
     fill = padded_indices(len(problems), size).tolist()
-    profile = options.probe
-    radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
+    radius = probe_radius(options.probe)
     pb0 = problems[0]
     us = np.stack([np.asarray(us[j], dtype=float) for j in fill])
     ps = np.stack([problems[j].param.to_natural_host(us[i]) for i, j in enumerate(fill)])
-    args = (pb0.spec, _stack([problems[j].param for j in fill], 1), jnp.asarray(us),
-            jnp.asarray(ps), _stack([problems[j].data for j in fill], 1),
+    # the model's inputs only where the call evaluates it
+    params, datas = ((_stack([problems[j].param for j in fill], 1),
+                      _stack([problems[j].data for j in fill], 1)) if model else (None, None))
+    args = (pb0.spec, params, jnp.asarray(us) if model else None, jnp.asarray(ps), datas,
             0.0 if radius is None else radius)
     tabor = pb0.names.index("work_of_adhesion") if radius is not None else None
     return args, {"tabor": tabor, "model": model}
@@ -916,7 +918,7 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
         valid = np.asarray(problems[j].data.valid) > 0
         a_max.append(float(np.nanmax(np.where(valid, m.contact_radius, 0.0))))
     check = jax.device_get(jc.profile_validity(profile, np.asarray(a_max)))
-    radius = float(profile.R) if isinstance(profile, jc.Parabola | jc.Sphere) else None
+    radius = probe_radius(profile)
     quality = _chunk_quality([problems[j].data for j in ok], models)
     for i, j in enumerate(ok):
         out[j].update(

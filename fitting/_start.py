@@ -143,6 +143,12 @@ def _radius(profile) -> float:
     return hit[1]
 
 
+def probe_radius(profile) -> float | None:
+    """The radius of curvature [m] of a paraboloid or sphere profile (read from the device
+    once per profile object), `None` for the other profiles."""
+    return _radius(profile) if isinstance(profile, jc.Parabola | jc.Sphere) else None
+
+
 def _gm(x) -> float:
     return float(np.exp(np.mean(np.log(np.asarray(x, dtype=float)))))
 
@@ -184,8 +190,8 @@ def data_scales(curves: Sequence[Curve], spec: ModelSpec, profile) -> DataScales
                 g0_est = max(g0_est, _hertz_modulus(float(fh[0]),
                                                     float(np.max(c.displacement[h])),
                                                     profile)[0])
-        rad = (_radius(profile) if isinstance(profile, jc.Parabola | jc.Sphere)
-               else a0 * a0 / depth)
+        rad = probe_radius(profile)
+        rad = a0 * a0 / depth if rad is None else rad
         fmin = float(f.min())
         force_range = float(c.force.max() - c.force.min())  # np.ptp
         dg.append(max(abs(fmin), 1e-3 * force_range) * g_h

@@ -1,5 +1,6 @@
-"""Equinox modules of the host path built from their fields without `__init__`
-(:func:`rebuild`).
+"""Helpers of the host path (numpy, per curve of a map): equinox modules built from their
+fields without `__init__` (:func:`rebuild`), and a value computed once per object
+(:func:`once_per_object`).
 
 The preparation of a force map builds a :class:`fitting.CurveBatch` and a
 :class:`fitting.Parameterisation` per curve; an equinox module's construction (its
@@ -12,9 +13,33 @@ and compare, :func:`rebuild`'s template).
 
 from __future__ import annotations
 
+import functools
+
 import jax
 
-__all__ = ["rebuild"]
+__all__ = ["rebuild", "once_per_object"]
+
+#: Objects :func:`once_per_object` keeps per function (a map shares one profile and one
+#: model spec; more means other fits).
+_KEPT = 64
+
+
+def once_per_object(fn):
+    """`fn(obj)` computed once per object `obj` (e.g. a profile's radius read from the
+    device, a model spec's parameter list): the result is kept with the object itself, so
+    that the object's `id` stays its own, for at most 64 objects (then forgotten)."""
+    cache: dict[int, tuple] = {}
+
+    @functools.wraps(fn)
+    def once(obj):
+        hit = cache.get(id(obj))
+        if hit is None or hit[0] is not obj:
+            if len(cache) >= _KEPT:
+                cache.clear()
+            hit = cache[id(obj)] = (obj, fn(obj))
+        return hit[1]
+
+    return once
 
 _TREEDEFS: dict = {}
 

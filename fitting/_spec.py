@@ -30,6 +30,8 @@ from jaxtyping import Array, Float
 import jaxcontact as jc
 from jaxcontact._vocabulary import PARAMETERS, column_unit, parameter
 
+from ._host import once_per_object
+
 __all__ = [
     "ModelSpec",
     "make_spec",
@@ -296,26 +298,16 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
     Kinds: "modulus", "viscosity", "time", "adhesion" (all positive, fitted in logs),
     "offset_length", "offset_force" (any sign, fitted linearly).
     """
-    hit = _INFO.get(id(spec))  # (a spec's fields read once: per curve of a map, twice)
-    if hit is None or hit[0] is not spec:
-        if len(_INFO) > 64:
-            _INFO.clear()
-        hit = _INFO[id(spec)] = (spec, _parameter_info(spec.rheology, spec.arms,
-                                                        spec.contact_offset,
-                                                        spec.force_offset))
-    return list(hit[1])
+    return list(_parameter_info(spec))
 
 
-_INFO: dict[int, tuple] = {}  # id(spec): (spec, info); held, so that the id stays its own
-
-
-@functools.lru_cache(maxsize=64)
-def _parameter_info(rheology, arms, contact_offset, force_offset) -> tuple:
-    out = list(RHEOLOGIES[rheology].parameters(arms))
+@once_per_object  # (a spec's fields read once: per curve of a map, twice)
+def _parameter_info(spec: ModelSpec) -> tuple:
+    out = list(RHEOLOGIES[spec.rheology].parameters(spec.arms))
     out.append(_info("work_of_adhesion"))
-    if contact_offset:
+    if spec.contact_offset:
         out.append(_info("contact_offset"))
-    if force_offset:
+    if spec.force_offset:
         out.append(_info("force_offset"))
     return tuple(out)
 

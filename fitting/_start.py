@@ -84,6 +84,7 @@ import numpy as np
 import jaxcontact as jc
 
 from ._curve import Curve
+from ._host import once_per_object
 from ._parameters import free_to_internal, internal_to_free
 from ._spec import ModelSpec, n_material, parameter_info, rheology_kind, rheology_name
 
@@ -129,18 +130,11 @@ def _hertz_modulus(force: float, depth: float, profile) -> tuple[float, float]:
     return abs(force) / max(lever, 1e-300), a
 
 
-_RADII: dict[int, tuple] = {}
-
-
+@once_per_object
 def _radius(profile) -> float:
     """`float(profile.R)` of a parabola or sphere, read from the device once per profile
     object (a map shares one; each read is a transfer, ~10 µs)."""
-    hit = _RADII.get(id(profile))
-    if hit is None or hit[0] is not profile:
-        if len(_RADII) > 16:
-            _RADII.clear()
-        hit = _RADII[id(profile)] = (profile, float(profile.R))  # held: its id stays its own
-    return hit[1]
+    return float(profile.R)
 
 
 def probe_radius(profile) -> float | None:

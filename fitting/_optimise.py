@@ -121,6 +121,7 @@ from ._uncertainty import (
     derived_fn,
     gauss_newton,
 )
+from ._xla import model_jit, program_options
 
 __all__ = ["fit", "solve", "solve_batch", "identify", "Identified"]
 
@@ -161,7 +162,7 @@ def _solver(optimiser: str, rtol: float, atol: float, gtol: float, max_steps: in
 _OPTIONS = ("rtol", "atol", "gtol", "max_steps", "optimiser", "workers")
 
 
-@functools.partial(jax.jit, static_argnames=_OPTIONS)
+@model_jit(static_argnames=_OPTIONS)
 def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
           rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8, max_steps: int = 200,
           optimiser: str = "lm", workers: int | None = None) -> Solution:
@@ -226,7 +227,8 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
             run = _programs.cached("solve_batch", _solve_batch,
                                    (spec, params, datas, jnp.asarray(z0s),
                                     jnp.asarray(limits)), opts,
-                                   flatten_out=_solution_fields, unflatten_out=_as_solution)
+                                   flatten_out=_solution_fields, unflatten_out=_as_solution,
+                                   compiler_options=program_options(spec.model))
             if run is not None:
                 if traced is not None:
                     traced()
@@ -259,7 +261,7 @@ def _as_solution(fields) -> Solution:
     return Solution(*fields[:6], model=None if m[0] is None else ModelAt(*m))
 
 
-@functools.partial(jax.jit, static_argnames=_OPTIONS + ("keep_jacobian",))
+@model_jit(static_argnames=_OPTIONS + ("keep_jacobian",))
 def _solve_batch(spec, params, datas, z0s, limits, *, workers, rtol, atol, gtol, max_steps,
                  optimiser, keep_jacobian):
     solver = _solver(optimiser, rtol, atol, gtol, max_steps)
@@ -782,7 +784,7 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
 SCREEN_BATCH = 64
 
 
-@jax.jit
+@model_jit()
 def _screen_chi2(spec, params, datas, pools):
     r"""$\chi^2$ at every screened point of every problem (leading axis of `params`,
     `datas`, `pools`; `pools`: free vectors `(problems, points, k)`), `(problems, points)`;

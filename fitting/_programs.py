@@ -36,7 +36,7 @@ import jax
 __all__ = ["cached", "enable"]
 
 _DIR: pathlib.Path | None = None
-_LOADED: dict[pathlib.Path, Callable] = {}  # this process's programs, by file
+_LOADED: dict[tuple, Callable] = {}  # this process's programs, by file and XLA options
 
 
 def enable(path) -> bool:
@@ -84,17 +84,21 @@ def _key(name: str, treedef, leaves, static: dict) -> str:
 
 
 def cached(name: str, fn: Callable, args: tuple, static: dict, *,
-           flatten_out: Callable, unflatten_out: Callable) -> Callable | None:
+           flatten_out: Callable, unflatten_out: Callable,
+           compiler_options: dict | None = None) -> Callable | None:
     """`None` when the cache is off; else a function of no arguments that returns
     `fn(*args, **static)` (`fn` jitted with `static` as its static keywords) through the
     traced program kept on disk: loaded when its key (module docstring) is there, else
     traced and written now. `flatten_out(out)` gives the outputs as a tuple of arrays (or
-    `None`), `unflatten_out(tuple)` the outputs back (the cache keeps no Python types)."""
+    `None`), `unflatten_out(tuple)` the outputs back (the cache keeps no Python types).
+    `compiler_options`: XLA's options for compiling the program (those `fn` compiles with;
+    :func:`fitting._xla.program_options`)."""
     if _DIR is None:
         return None
     leaves, treedef = jax.tree.flatten(args)
     path = _DIR / f"{name}-{_key(name, treedef, leaves, static)}.jaxexport"
-    run = _LOADED.get(path)
+    options = tuple(sorted((compiler_options or {}).items()))
+    run = _LOADED.get((path, options))
     if run is not None:  # loaded (or traced) before in this process
         return lambda: unflatten_out(run(*leaves))
     exported = None
@@ -118,5 +122,6 @@ def cached(name: str, fn: Callable, args: tuple, static: dict, *,
                 os.unlink(tmp)
             except (OSError, UnboundLocalError):
                 pass
-    run = _LOADED[path] = jax.jit(exported.call)
+    run = _LOADED[path, options] = jax.jit(exported.call,
+                                           compiler_options=dict(options) or None)
     return lambda: unflatten_out(run(*leaves))

@@ -1,43 +1,120 @@
-"""XLA options for the CPU that make the fitting Jacobian faster (`tune_xla_cpu`)."""
+"""XLA options for the CPU that make the fitting programs faster: per compiled program, by
+forward model (:func:`program_options`, :class:`ModelJit`: the one home of that choice), and
+for a whole process (:func:`tune_xla_cpu`)."""
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 
-__all__ = ["XLA_CPU_FLAGS", "tune_xla_cpu"]
+import jax
+
+__all__ = ["XLA_CPU_FLAGS", "tune_xla_cpu", "program_options", "ModelJit"]
 
 
 #: XLA options for the CPU that ``jaxcontact fit`` applies (see `tune_xla_cpu`).
 XLA_CPU_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
 
 
+#: The fitting programs' own XLA options by forward model (:func:`program_options`). XLA's
+#: newer CPU fusion emitters compile the full-history model's search 1.8x slower than the
+#: older ones, and the relaxed model's search 1.2x faster (jaxlib 0.10.2, 2-core AMD EPYC,
+#: 2026-11-27: `benchmarks/results/fit_each.md`, "XLA's code generator chosen per model").
+_PROGRAM_OPTIONS = {"history": {"xla_cpu_use_fusion_emitters": False}}
+
+
+def _jaxlib_minor() -> tuple[int, ...]:
+    try:
+        import jaxlib
+
+        return tuple(int(x) for x in jaxlib.__version__.split(".")[:2])
+    except Exception:  # pragma: no cover - unusual installs
+        return ()
+
+
+def program_options(model: str) -> dict | None:
+    """The XLA compiler options of a fitting program of the forward model `model`
+    ("relaxed" or "history"), for ``jax.jit(..., compiler_options=...)``; `None`: XLA's
+    defaults (or what ``XLA_FLAGS`` says).
+
+    The full-history model's search runs XLA's older CPU fusion emitters
+    (``xla_cpu_use_fusion_emitters=False``), the relaxed model's the default newer ones
+    (`_PROGRAM_OPTIONS`, measured). An option of a program overrides the process's
+    ``XLA_FLAGS``, so none is given where ``XLA_FLAGS`` already names it (the user's
+    choice), with ``JAXCONTACT_XLA_TUNING=0``, or where the option is not known to exist
+    (jaxlib other than 0.10: an unknown option fails the compilation). The option only
+    chooses the CPU's code generator (other platforms ignore it): results agree to
+    round-off."""
+    chosen = _PROGRAM_OPTIONS.get(model)
+    if not chosen or os.environ.get("JAXCONTACT_XLA_TUNING", "1") == "0":
+        return None
+    if _jaxlib_minor() != (0, 10):
+        return None
+    flags = os.environ.get("XLA_FLAGS", "")
+    chosen = {k: v for k, v in chosen.items() if k not in flags}
+    return chosen or None
+
+
+class ModelJit:
+    """``jax.jit(fun, **jit_keywords)`` compiled with :func:`program_options` of the
+    forward model of its first argument (a :class:`fitting.ModelSpec`): one jitted
+    function per set of options, so that a relaxed and a full-history fit in one process
+    each get their code generator. Calls, ``.trace`` and ``.lower`` as of the jitted
+    function."""
+
+    def __init__(self, fun, **jit_keywords):
+        functools.update_wrapper(self, fun)
+        self._fun, self._keywords, self._jitted = fun, jit_keywords, {}
+
+    def jitted(self, model: str):
+        """The jitted function with the options of `model`."""
+        options = program_options(model)
+        key = tuple(sorted(options.items())) if options else ()
+        fn = self._jitted.get(key)
+        if fn is None:
+            fn = self._jitted[key] = jax.jit(self._fun, compiler_options=options,
+                                             **self._keywords)
+        return fn
+
+    def __call__(self, spec, *args, **kwargs):
+        return self.jitted(spec.model)(spec, *args, **kwargs)
+
+    def trace(self, spec, *args, **kwargs):
+        return self.jitted(spec.model).trace(spec, *args, **kwargs)
+
+    def lower(self, spec, *args, **kwargs):
+        return self.jitted(spec.model).lower(spec, *args, **kwargs)
+
+
+def model_jit(**jit_keywords):
+    """Decorator: :class:`ModelJit` of the decorated function with `jit_keywords`."""
+    return lambda fun: ModelJit(fun, **jit_keywords)
+
+
 def tune_xla_cpu() -> list[str]:
     """Add `XLA_CPU_FLAGS` to ``XLA_FLAGS`` before JAX starts its CPU backend.
 
-    XLA's newer CPU fusion emitters compile the element-wise kernels of the fitting
-    residuals and their forward-mode tangents into slower code than the previous emitters
-    with jaxlib 0.10 (``python benchmarks/bench_fit.py`` and ``--no-xla-tuning`` measure
-    it and print which flags were active). The
+    XLA's newer CPU fusion emitters compile the element-wise kernels of the full-history
+    model's residuals and their forward-mode tangents into slower code than the previous
+    emitters with jaxlib 0.10 (``python benchmarks/bench_fit.py`` and ``--no-xla-tuning``
+    measure it and print which flags were active); the fitting's own search programs choose
+    per model without it (:func:`program_options`), so this matters for the other
+    programs of a history-model fit (the posterior's sampler, a profile likelihood). The
     flag only chooses the code generator; results agree to round-off (the test suite
     passes either way). Applied only where it is known to exist (jaxlib 0.10: an unknown
     flag makes XLA abort), only before the backend has started, never over a choice made in
     ``XLA_FLAGS`` already, and not at all with ``JAXCONTACT_XLA_TUNING=0``. Returns the
-    flags added. ``jaxcontact fit`` and ``benchmarks/bench_fit.py`` call this first; library
-    users who fit may call it at the top of a script, before any JAX computation. Not for
-    forward runs: the same code generator makes them slower (a full-history sweep 1.5x in
-    float64, the relaxed-start `retract` 5-8x in float32; jaxlib 0.10.2, 2-core CPU), so the
-    other commands of the command line keep XLA's default.
+    flags added. ``jaxcontact fit --model history`` and ``benchmarks/bench_fit.py`` call
+    this first; library users who fit the history model may call it at the top of a
+    script, before any JAX computation. Not for forward runs, nor relaxed-model fits: the
+    same code generator makes them slower (a full-history sweep 1.5x in float64, the
+    relaxed-start `retract` 5-8x in float32, the relaxed model's search 1.2x; jaxlib
+    0.10.2, 2-core CPU), so the other commands of the command line keep XLA's default.
     """
     if os.environ.get("JAXCONTACT_XLA_TUNING", "1") == "0":
         return []
-    try:
-        import jaxlib
-
-        version = tuple(int(x) for x in jaxlib.__version__.split(".")[:2])
-    except Exception:  # pragma: no cover - unusual installs
-        return []
-    if version != (0, 10):
+    if _jaxlib_minor() != (0, 10):
         return []
     if "jax" in sys.modules:
         from jax._src import xla_bridge

@@ -105,10 +105,13 @@ def _one_line(err: BaseException) -> str:
     return text if len(text) <= 600 else text[:597] + "..."
 
 
-#: Commands that run with `fitting.XLA_CPU_FLAGS`: the older CPU code generator makes the
-#: fitting Jacobian faster, but the forward models slower (benchmarks/results/forward.md,
-#: section 3), so `simulate`, `sweep` and `demo` keep XLA's default.
-TUNED_COMMANDS = frozenset({"fit"})
+#: Commands that run with `fitting.XLA_CPU_FLAGS` (for the whole process), and for which
+#: models: the older CPU code generator makes the full-history model's fit faster, but the
+#: relaxed model's search and the forward models slower (benchmarks/results/forward.md,
+#: section 3; fit_each.md, "XLA's code generator chosen per model"), so `simulate`,
+#: `sweep`, `demo` and relaxed-model fits keep XLA's default (a fit's search programs
+#: choose per model anyway: `fitting._xla.program_options`).
+TUNED_COMMANDS = {"fit": frozenset({"history"})}
 
 
 def _parse(argv) -> argparse.Namespace | int:
@@ -119,7 +122,7 @@ def _parse(argv) -> argparse.Namespace | int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
-    if args.command in TUNED_COMMANDS:
+    if getattr(args, "model", None) in TUNED_COMMANDS.get(args.command, ()):
         tune_xla_cpu()
     return args
 

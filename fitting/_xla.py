@@ -60,8 +60,8 @@ class ModelJit:
     """``jax.jit(fun, **jit_keywords)`` compiled with :func:`program_options` of the
     forward model of its first argument (a :class:`fitting.ModelSpec`): one jitted
     function per set of options, so that a relaxed and a full-history fit in one process
-    each get their code generator. Calls, ``.trace`` and ``.lower`` as of the jitted
-    function."""
+    each get their code generator. Calls, ``.trace``, ``.lower`` and ``.clear_cache`` as of
+    the jitted function."""
 
     def __init__(self, fun, **jit_keywords):
         functools.update_wrapper(self, fun)
@@ -85,6 +85,12 @@ class ModelJit:
 
     def lower(self, spec, *args, **kwargs):
         return self.jitted(spec.model).lower(spec, *args, **kwargs)
+
+    def clear_cache(self) -> None:
+        """Forget the traces and compilations of every jitted function (as
+        ``jax.jit(...).clear_cache()``)."""
+        for fn in self._jitted.values():
+            fn.clear_cache()
 
 
 def model_jit(**jit_keywords):

@@ -77,14 +77,18 @@ class ModelJit:
                                              **self._keywords)
         return fn
 
-    def __call__(self, spec, *args, **kwargs):
-        return self.jitted(spec.model)(spec, *args, **kwargs)
+    def _for(self, args, kwargs):
+        spec = args[0] if args else kwargs["spec"]  # (a keyword `spec` as well)
+        return self.jitted(spec.model)
 
-    def trace(self, spec, *args, **kwargs):
-        return self.jitted(spec.model).trace(spec, *args, **kwargs)
+    def __call__(self, *args, **kwargs):
+        return self._for(args, kwargs)(*args, **kwargs)
 
-    def lower(self, spec, *args, **kwargs):
-        return self.jitted(spec.model).lower(spec, *args, **kwargs)
+    def trace(self, *args, **kwargs):
+        return self._for(args, kwargs).trace(*args, **kwargs)
+
+    def lower(self, *args, **kwargs):
+        return self._for(args, kwargs).lower(*args, **kwargs)
 
     def clear_cache(self) -> None:
         """Forget the traces and compilations of every jitted function (as

@@ -1,8 +1,9 @@
 import os
 
 # Compilation dominates the suite's time (each test compiles its own programs), so the
-# suite runs XLA's CPU backend as `jaxcontact fit` does (`fitting.XLA_CPU_FLAGS`, added by
-# `fitting.tune_xla_cpu` below: the code generator the main job uses) and without LLVM's
+# suite runs XLA's CPU backend as `jaxcontact fit --model history` does (`fitting.XLA_CPU_FLAGS`,
+# added by `fitting.tune_xla_cpu` below: the code generator the main job uses; the relaxed
+# model's fits run XLA's default outside the suite) and without LLVM's
 # optimisation passes (`--xla_backend_optimization_level=0`). Neither changes IEEE
 # arithmetic (no fast math); together they cut the suite's CPU time by about a third
 # (measured 2026-11-24: tests/test_pulloff.py + test_elastic.py 136 -> 55 s,

@@ -51,6 +51,7 @@ def test_each_model_is_compiled_with_its_options(monkeypatch, tmp_path):
     assert NEWER in fn.lower(history, x).compile().as_text()
     assert NEWER not in fn.lower(relaxed, x).compile().as_text()
     np.testing.assert_array_equal(fn(history, x), fn(relaxed, x))  # the same answers
+    np.testing.assert_array_equal(fn(spec=history, x=x), fn(history, x))  # keywords too
 
     try:
         assert _programs.enable(tmp_path)

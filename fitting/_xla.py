@@ -42,14 +42,14 @@ def program_options(model: str) -> dict | None:
     (``xla_cpu_use_fusion_emitters=False``), the relaxed model's the default newer ones
     (`_PROGRAM_OPTIONS`, measured). An option of a program overrides the process's
     ``XLA_FLAGS``, so none is given where ``XLA_FLAGS`` already names it (the user's
-    choice), with ``JAXCONTACT_XLA_TUNING=0``, or where the option is not known to exist
-    (jaxlib other than 0.10: an unknown option fails the compilation). The option only
-    chooses the CPU's code generator (other platforms ignore it): results agree to
-    round-off."""
+    choice), with ``JAXCONTACT_XLA_TUNING=0``, where the option is not known to exist
+    (jaxlib other than 0.10: an unknown option fails the compilation), or where JAX's
+    default backend is not the CPU (the option chooses the CPU's code generator only).
+    Results agree to round-off."""
     chosen = _PROGRAM_OPTIONS.get(model)
     if not chosen or os.environ.get("JAXCONTACT_XLA_TUNING", "1") == "0":
         return None
-    if _jaxlib_minor() != (0, 10):
+    if _jaxlib_minor() != (0, 10) or jax.default_backend() != "cpu":
         return None
     flags = os.environ.get("XLA_FLAGS", "")
     chosen = {k: v for k, v in chosen.items() if k not in flags}

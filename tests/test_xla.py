@@ -30,6 +30,9 @@ def test_program_options_by_model(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
     assert _xla.program_options("history") is None
     monkeypatch.delenv("XLA_FLAGS")
+    with monkeypatch.context() as m:  # another platform: the CPU's option is not given
+        m.setattr(_xla.jax, "default_backend", lambda: "gpu")
+        assert _xla.program_options("history") is None
     monkeypatch.setenv("JAXCONTACT_XLA_TUNING", "0")
     assert _xla.program_options("history") is None
 

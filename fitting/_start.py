@@ -281,7 +281,7 @@ def _latin_hypercube(n: int, dim: int, seed: int, designs: int) -> np.ndarray:
     keys = draws[:, 0].reshape(k, dim, n)
     jitter = draws[:, 1].reshape(k, n, dim)
     u = (np.swapaxes(np.argsort(keys, axis=2), 1, 2) + jitter) / n
-    if n < 2:
+    if n < 2 or k == 1:  # nothing to choose (a screen's one design: no n^2 distances)
         return u[0]
     diff = u[:, :, None, :] - u[:, None, :, :]
     dist = np.sqrt(np.sum(diff * diff, axis=-1))

@@ -889,6 +889,25 @@ def test_screened_starts_are_the_lowest_chi2_points_of_the_screen():
     assert max(_errors(res).values()) < 0.05
 
 
+def test_latin_hypercube_is_stratified_and_maximin_for_few_points():
+    # every column of an n-point design has one point in each of the n strata; a screen's
+    # large design (one design, nothing to choose: no n^2 distance matrix, which at 8,192
+    # points took 24 s and 3.7 GB) as well; for a few points the best of several designs by
+    # the smallest pairwise distance, recomputed here from its definition
+    from fitting._start import latin_hypercube
+
+    for n, designs in ((8192, 1), (16, 20)):
+        u = latin_hypercube(n, 7, seed=3, designs=designs)
+        assert u.shape == (n, 7) and np.all((u >= 0) & (u < 1))
+        for col in u.T:
+            np.testing.assert_array_equal(np.sort(np.floor(col * n)), np.arange(n))
+    d = lambda v: min(np.linalg.norm(v[i] - v[j]) for i in range(16)  # noqa: E731
+                      for j in range(i))
+    best = latin_hypercube(16, 7, seed=3, designs=20)
+    assert d(best) >= d(latin_hypercube(16, 7, seed=3, designs=1)) - 1e-15
+    np.testing.assert_array_equal(latin_hypercube(16, 7, seed=3, designs=20), best)
+
+
 def test_screen_and_explore_options_are_checked():
     with pytest.raises(ValueError, match=r"screen must be 0 or an integer >= n_starts \(4\)"):
         fitting.FitOptions(radius=R, n_starts=4, screen=3)

@@ -13,17 +13,18 @@ import jax
 __all__ = ["XLA_CPU_FLAGS", "tune_xla_cpu", "program_options", "ModelJit"]
 
 
-#: XLA options for the CPU that ``jaxcontact fit`` applies (see `tune_xla_cpu`).
-XLA_CPU_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
-
-
 #: The fitting programs' own XLA options by forward model (:func:`program_options`). XLA's
 #: newer CPU fusion emitters compile the full-history model's search 1.8x slower than the
 #: older ones, and the relaxed model's search 1.2x faster (jaxlib 0.10.2, 2-core AMD EPYC,
 #: 2026-11-27: `benchmarks/results/fit_each.md`, "XLA's code generator chosen per model").
 _PROGRAM_OPTIONS = {"history": {"xla_cpu_use_fusion_emitters": False}}
 
+#: XLA options for the CPU that ``jaxcontact fit --model history`` applies to its whole
+#: process (see `tune_xla_cpu`): the history model's program options as flags.
+XLA_CPU_FLAGS = tuple(f"--{k}={str(v).lower()}" for k, v in _PROGRAM_OPTIONS["history"].items())
 
+
+@functools.lru_cache(maxsize=1)
 def _jaxlib_minor() -> tuple[int, ...]:
     try:
         import jaxlib

@@ -34,6 +34,13 @@ def _jaxlib_minor() -> tuple[int, ...]:
         return ()
 
 
+def _tuning_possible() -> bool:
+    """The options may be given: not switched off (``JAXCONTACT_XLA_TUNING=0``) and known
+    to exist (jaxlib 0.10: an unknown option makes XLA abort)."""
+    return (os.environ.get("JAXCONTACT_XLA_TUNING", "1") != "0"
+            and _jaxlib_minor() == (0, 10))
+
+
 def program_options(model: str) -> dict | None:
     """The XLA compiler options of a fitting program of the forward model `model`
     ("relaxed" or "history"), for ``jax.jit(..., compiler_options=...)``; `None`: XLA's
@@ -48,9 +55,7 @@ def program_options(model: str) -> dict | None:
     default backend is not the CPU (the option chooses the CPU's code generator only).
     Results agree to round-off."""
     chosen = _PROGRAM_OPTIONS.get(model)
-    if not chosen or os.environ.get("JAXCONTACT_XLA_TUNING", "1") == "0":
-        return None
-    if _jaxlib_minor() != (0, 10) or jax.default_backend() != "cpu":
+    if not chosen or not _tuning_possible() or jax.default_backend() != "cpu":
         return None
     flags = os.environ.get("XLA_FLAGS", "")
     chosen = {k: v for k, v in chosen.items() if k not in flags}
@@ -123,9 +128,7 @@ def tune_xla_cpu() -> list[str]:
     relaxed-start `retract` 5-8x in float32, the relaxed model's search 1.2x; jaxlib
     0.10.2, 2-core CPU), so the other commands of the command line keep XLA's default.
     """
-    if os.environ.get("JAXCONTACT_XLA_TUNING", "1") == "0":
-        return []
-    if _jaxlib_minor() != (0, 10):
+    if not _tuning_possible():
         return []
     if "jax" in sys.modules:
         from jax._src import xla_bridge

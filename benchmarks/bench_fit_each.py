@@ -14,7 +14,12 @@ relative difference of the fitted values between the two (the same optimum is ex
 and the curves whose χ² is at most the loop's.
 
     python benchmarks/bench_fit_each.py [--curves 32] [--samples 60] [--chunks 8,32]
-        [--repeats 1] [--no-loop] [--quick] [--model relaxed|history] [--out -]
+        [--streams 1,2] [--repeats 1] [--no-loop] [--quick] [--model relaxed|history]
+        [--out -]
+
+`--streams`: chunks searched at once (`fitting.BatchOptions.streams`), each value timed
+in turn (default: the library's default, one per usable core on a CPU); the χ² of every
+curve is compared with the first value's (the results do not depend on it).
 
 `--quick`: 8 curves, chunk 8, no loop, written to stdout only (a smoke run, e.g. on a
 GPU machine: about a minute on 2 CPU cores, mostly compilation).
@@ -111,6 +116,9 @@ def main(argv=None):
     ap.add_argument("--curves", type=int, default=32)
     ap.add_argument("--samples", type=int, default=60)
     ap.add_argument("--chunks", default="8,32")
+    ap.add_argument("--streams", default="",
+                    help="comma-separated values of BatchOptions.streams to time (default: "
+                         "the library's default only)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--no-loop", action="store_true", help="leave out the loop of fit")
     ap.add_argument("--quick", action="store_true",
@@ -141,35 +149,47 @@ def main(argv=None):
         ref = np.array([r.values for r in loop])
         chi_ref = np.array([r.chi2 for r in loop])
         steps = float(np.mean([np.sum(r.start_steps) for r in loop]))
-        rows.append(f"| loop of `fit` | - | {t_cold:.1f} | {t_loop:.1f} | "
+        rows.append(f"| loop of `fit` | - | - | {t_cold:.1f} | {t_loop:.1f} | "
                     f"{args.curves / t_loop:.2f} | | | | {steps:.0f} | 1 | - | - |")
         print(rows[-1], flush=True)
+    streams = [int(k) for k in args.streams.split(",") if k] or [None]
+    chi_first = {}
     for chunk in (int(c) for c in args.chunks.split(",")):
-        t0 = time.perf_counter()
-        fitting.fit_each(curves, chunk=chunk, **fit_kw)
-        cold = time.perf_counter() - t0
-        warm, stages = [], []
-        for _ in range(max(1, args.repeats)):
+        for k in streams:
+            kw = dict(fit_kw, chunk=chunk, streams=k)
             t0 = time.perf_counter()
-            res = fitting.fit_each(curves, chunk=chunk, **fit_kw)
-            warm.append(time.perf_counter() - t0)
-            stages.append(res.timings)
-        w = statistics.median(warm)
-        ms = {k: 1e3 * statistics.median(t[k] for t in stages) / args.curves
-              for k in ("prepare", "optimise", "finish")}
-        chi = np.array([r.chi2 for r in res.results])
-        steps = float(np.mean([np.sum(r.start_steps) for r in res.results]))
-        if ref is not None:
-            diff = f"{float(np.max(np.abs(res.values() / ref - 1))):.1e}"
-            lower = f"{int(np.sum(chi <= chi_ref * (1 + 1e-9)))}/{args.curves}"
-            ratio = f"{t_loop / w:.2f}"
-        else:
-            diff = lower = ratio = "-"
-        rows.append(f"| `fit_each` | {chunk} | {cold:.1f} | {w:.2f} | {args.curves / w:.2f} | "
-                    f"{ms['prepare']:.1f} | {ms['optimise']:.1f} | {ms['finish']:.1f} | "
-                    f"{steps:.0f} | {ratio} | {diff} | {lower} |")
-        print(rows[-1], flush=True)
-        print(f"  chi2 sum {float(np.sum(chi)):.12g}", flush=True)
+            fitting.fit_each(curves, **kw)
+            cold = time.perf_counter() - t0
+            warm, stages = [], []
+            for _ in range(max(1, args.repeats)):
+                t0 = time.perf_counter()
+                res = fitting.fit_each(curves, **kw)
+                warm.append(time.perf_counter() - t0)
+                stages.append(res.timings)
+            w = statistics.median(warm)
+            ms = {s: 1e3 * statistics.median(t[s] for t in stages) / args.curves
+                  for s in ("prepare", "optimise", "finish")}
+            chi = np.array([r.chi2 for r in res.results])
+            same = ""
+            if chunk in chi_first:
+                same = f" (χ² of every curve equal to the first row's of this chunk: " \
+                       f"{bool(np.array_equal(chi, chi_first[chunk]))})"
+            chi_first.setdefault(chunk, chi)
+            steps = float(np.mean([np.sum(r.start_steps) for r in res.results]))
+            if ref is not None:
+                diff = f"{float(np.max(np.abs(res.values() / ref - 1))):.1e}"
+                lower = f"{int(np.sum(chi <= chi_ref * (1 + 1e-9)))}/{args.curves}"
+                ratio = f"{t_loop / w:.2f}"
+            else:
+                diff = lower = ratio = "-"
+            n_streams = fitting.BatchOptions(streams=k).streams_for(
+                -(-args.curves // chunk))
+            rows.append(f"| `fit_each` | {chunk} | {n_streams} | {cold:.1f} | {w:.2f} | "
+                        f"{args.curves / w:.2f} | {ms['prepare']:.1f} | "
+                        f"{ms['optimise']:.1f} | {ms['finish']:.1f} | {steps:.0f} | "
+                        f"{ratio} | {diff} | {lower} |")
+            print(rows[-1], flush=True)
+            print(f"  chi2 sum {float(np.sum(chi)):.12g}{same}", flush=True)
     head = [
         "# Force-map fits: `fitting.fit_each` against a loop of `fitting.fit`",
         "",
@@ -178,8 +198,10 @@ def main(argv=None):
         f"search ({fitting.DEFAULT_STARTS} starts, up to {fitting.DEFAULT_LOCAL_ROUNDS} "
         f"local rounds); `python benchmarks/bench_fit_each.py {' '.join(sys.argv[1:])}`.",
         "",
-        "Times in s. *cold*: the first call (compilation included); *warm*: median of the "
-        "repeats; *prepare*, *optimise*, *finish*: the warm stages in ms a curve; ratio: the "
+        "Times in s. *streams*: chunks searched at once; *cold*: the first call (compilation "
+        "included); *warm*: median of the repeats; *prepare*, *optimise*, *finish*: the warm "
+        "stages in ms a curve (*optimise*: the time the pipeline waited for the searches, "
+        "which overlap each other and the finish); ratio: the "
         "loop's warm time over the warm `fit_each` time; *LM steps*: Levenberg–Marquardt "
         "steps a curve, all starts and rounds (each one Jacobian: the cost, whatever the "
         "machine's load); *max rel. diff.*: largest relative "
@@ -187,9 +209,9 @@ def main(argv=None):
         "most the loop's (a chunk runs its local rounds while any of its curves improves, so "
         "a curve may get more rounds than alone).",
         "",
-        "| method | chunk | cold [s] | warm [s] | curves/s (warm) | prepare [ms] | "
+        "| method | chunk | streams | cold [s] | warm [s] | curves/s (warm) | prepare [ms] | "
         "optimise [ms] | finish [ms] | LM steps | ratio | max rel. diff. | χ² ≤ loop |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     if args.quick or args.out == "-":
         print("\n".join(head + rows))

@@ -61,7 +61,8 @@ class FitEachResult:
     **Fields:** `results` (a :class:`FitResult`, or `None` for a failed curve), `errors`
     (`None`, or the reason a curve failed), `sources`, `metadata` (per curve), `names`,
     `units`, `columns` (parameter names, units, names with units), `model`, `rheology`,
-    `timings` [s] (prepare, optimise, finish, total).
+    `timings` [s] (prepare, optimise, finish, total; optimise: the time the pipeline
+    waited for the searches, which overlap each other and the finish).
     """
 
     results: list[FitResult | None]
@@ -187,8 +188,9 @@ def fit_each(curves: Sequence[Curve | FailedCurve], *, options: FitOptions | Non
       "standard", "elastic" or "prony:N", nested per curve; "auto" is not offered: a map
       needs one model for all points; one `spring_constant` for all curves, or `None`).
     - `batch`: a :class:`fitting.BatchOptions`, or its fields as keywords (`chunk`: curves
-      per compiled call; `workers`: lanes of the pool per device; `devices`): how the fits
-      are scheduled, which :func:`fitting.fit` does not need.
+      per compiled call; `workers`: lanes of the pool per device; `devices`; `streams`:
+      chunks searched at once, by default one per CPU core, without changing any result):
+      how the fits are scheduled, which :func:`fitting.fit` does not need.
 
     A keyword given beside `options` or `batch` must agree with it.
 

@@ -347,6 +347,84 @@ class _Background:
         return self._fn(*args, **static)
 
 
+class _Streams:
+    """The searches of a stage's `n` chunks, `search(k, searched)` for chunk `k`, run in
+    `streams` host threads at once and taken in chunk order (:meth:`take`); with one
+    stream each runs in the calling thread when it is taken (no thread).
+
+    The first chunk starts alone, the others once its first pool call has returned
+    (`searched`): one thread traces and compiles the search's program, and the others
+    find it (two threads compiling one program take about as long each as both). At
+    most ``2 * streams`` chunks are searched ahead of the one taken (their host results
+    bound the memory). The threads are daemons, carry the calling thread's 64-bit setting
+    and default device (JAX's settings are local to a thread), and start no chunk after
+    :meth:`close`: an error or an interrupt of the caller leaves at most the running
+    chunks to end on their own. An error of a search is raised by :meth:`take` of its
+    chunk. The results do not depend on `streams`: each chunk's search is its own."""
+
+    def __init__(self, search, n: int, streams: int):
+        self._search, self._n = search, n
+        self._results: list = [None] * n
+        self._done = [threading.Event() for _ in range(n)]
+        self._first = threading.Event()
+        self._lock = threading.Lock()
+        self._room = threading.Semaphore(2 * streams)
+        self._next, self._closed = 0, False
+        self._threads = []
+        if streams > 1:
+            x64 = bool(jax.config.jax_enable_x64)
+            device = jax.config.jax_default_device
+            for _ in range(min(streams, n)):
+                t = threading.Thread(target=self._work, args=(x64, device), daemon=True)
+                self._threads.append(t)
+                t.start()
+
+    def _work(self, x64, device) -> None:
+        with jax.enable_x64(x64), jax.default_device(device):
+            while True:
+                self._room.acquire()
+                with self._lock:
+                    if self._closed or self._next >= self._n:
+                        self._room.release()
+                        return
+                    k, self._next = self._next, self._next + 1
+                if k:
+                    self._first.wait()
+                self._run(k)
+
+    def _run(self, k: int) -> None:
+        try:
+            if self._closed:
+                raise RuntimeError("the searches were closed")
+            self._results[k] = (True, self._search(k, self._first.set if k == 0 else None))
+        except BaseException as exc:  # noqa: BLE001 - raised by `take` in the caller
+            self._results[k] = (False, exc)
+        finally:
+            if k == 0:
+                self._first.set()
+            self._done[k].set()
+
+    def take(self, k: int):
+        """The result of chunk `k`'s search (raises its error)."""
+        if self._threads:
+            self._done[k].wait()
+            self._room.release()
+        else:
+            self._run(k)
+        (ok, value), self._results[k] = self._results[k], None
+        if not ok:
+            raise value
+        return value
+
+    def close(self) -> None:
+        """Start no more chunks (the running ones end on their own)."""
+        with self._lock:
+            self._closed = True
+        self._first.set()
+        for _ in self._threads:
+            self._room.release()
+
+
 @keyword_signature(FitOptions)
 def fit(curves: Curve | Sequence[Curve], *, options: FitOptions | None = None,
         **keywords) -> FitResult:
@@ -598,7 +676,9 @@ class Identified:
     :class:`FitResult` of each step of the chain of models reached, or with `keep_steps`
     false only the last one), `errors` (`None`, or why the group failed: with `isolate`),
     and for all: `spec` (the model of the last step run; `None` if no group was prepared)
-    and `timings` [s] (prepare, optimise, finish: summed over the steps and chunks)."""
+    and `timings` [s] (prepare, optimise, finish: summed over the steps and chunks;
+    optimise is the time spent waiting for the chunks' searches, which run in
+    `BatchOptions.streams_for` threads at once and overlap the finish)."""
 
     steps: list[list[FitResult]]
     errors: list[str | None]
@@ -630,7 +710,8 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
        starts, and the last chunk to the chunk size) so that one compilation serves all:
        the global search of all starts of the chunk, then the local rounds
        (:func:`_local_search`), each one call of :func:`solve_batch` on
-       ``batch.lanes(...)`` lanes over ``batch.devices``.
+       ``batch.lanes(...)`` lanes over ``batch.devices``; ``batch.streams_for(...)``
+       chunks at once, each from its own host thread (:class:`_Streams`).
     3. **Finish** each problem's best start: the device work of a chunk in one compiled
        call (:func:`_finish_chunk`: the derived quantities and Tabor's parameter with
        their gradients, vmapped over the chunk's problems, padded to the chunk size; the
@@ -691,41 +772,56 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         args, kw = _chunk_inputs([pb0], [pb0.param.internal_host(pb0.zs[0])], size, options,
                                  model=not _carries_model(options))
         model_at = _Background(_evaluate_chunk, *args, **kw)
-        for c0 in range(0, len(idx), size):
-            part = idx[c0:c0 + size]
-            t0 = time.perf_counter()
-            outs = _search_chunk([problems[g] for g in part], size, options, batch,
-                                 lanes=batch.lanes(size, n_z), show=show,
-                                 traced=model_at.start)
-            model_at.join()
-            t_search = time.perf_counter() - t0
-            timings["optimise"] += t_search
-            t0 = time.perf_counter()
-            pres = _finish_chunk([problems[g] for g in part], outs, size, options, failed,
-                                 evaluate=model_at.call)
-            for g, out, pre in zip(part, outs, pres, strict=True):
-                pb = problems[g]
-                stage = {"prepare": prepared[g], "optimise": t_search}  # the chunk's
-                try:
-                    if isinstance(pre, BaseException):
-                        raise pre
-                    with warnings.catch_warnings():
-                        if not last:  # a step of the chain: its warnings are not the result's
-                            warnings.simplefilter("ignore", IdentifiabilityWarning)
-                            warnings.simplefilter("ignore", ModelValidityWarning)
-                        res = _finish(pb, out, options, pre, show=say,
-                                      warn=warn and last, timings=stage, t_start=started[g])
-                except failed as exc:
-                    errors[g] = _message(exc)
-                    continue
-                steps[g] = steps[g] + [res] if keep_steps else [res]
-            timings["finish"] += time.perf_counter() - t0
-            if progress is not None:
-                progress(rheology_name(spec), min(c0 + size, len(idx)))
+        # the chunks' searches, one per stream at once (`BatchOptions.streams_for`), each
+        # finished here in order
+        chunks = [idx[c0:c0 + size] for c0 in range(0, len(idx), size)]
+        search = functools.partial(_timed_search, [[problems[g] for g in part]
+                                                   for part in chunks],
+                                   size, options, batch, lanes=batch.lanes(size, n_z),
+                                   show=show, traced=model_at.start)
+        searches = _Streams(search, len(chunks), batch.streams_for(len(chunks)))
+        try:
+            for k, part in enumerate(chunks):
+                t0 = time.perf_counter()
+                outs, t_search = searches.take(k)
+                model_at.join()
+                timings["optimise"] += time.perf_counter() - t0  # waited for, in order
+                t0 = time.perf_counter()
+                pres = _finish_chunk([problems[g] for g in part], outs, size, options,
+                                     failed, evaluate=model_at.call)
+                for g, out, pre in zip(part, outs, pres, strict=True):
+                    stage = {"prepare": prepared[g], "optimise": t_search}  # the chunk's
+                    try:
+                        if isinstance(pre, BaseException):
+                            raise pre
+                        with warnings.catch_warnings():
+                            if not last:  # a step of the chain: not the result's warnings
+                                warnings.simplefilter("ignore", IdentifiabilityWarning)
+                                warnings.simplefilter("ignore", ModelValidityWarning)
+                            res = _finish(problems[g], out, options, pre, show=say,
+                                          warn=warn and last, timings=stage,
+                                          t_start=started[g])
+                    except failed as exc:
+                        errors[g] = _message(exc)
+                        continue
+                    steps[g] = steps[g] + [res] if keep_steps else [res]
+                timings["finish"] += time.perf_counter() - t0
+                if progress is not None:
+                    progress(rheology_name(spec), min((k + 1) * size, len(idx)))
+        finally:
+            searches.close()
     for g in range(n):  # a group that failed at a later step of the chain has no result
         if errors[g] is not None:
             steps[g] = []
     return Identified(steps=steps, errors=errors, spec=spec, timings=timings)
+
+
+def _timed_search(chunks: list[list[_Problem]], size: int, options: FitOptions,
+                  batch: BatchOptions, k: int, searched=None, **kw) -> tuple:
+    """:func:`_search_chunk` of `chunks[k]` and its wall time [s]."""
+    t0 = time.perf_counter()
+    outs = _search_chunk(chunks[k], size, options, batch, searched=searched, **kw)
+    return outs, time.perf_counter() - t0
 
 
 def _pad(problems: dict) -> None:
@@ -744,11 +840,12 @@ def _pad(problems: dict) -> None:
 
 def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
                   batch: BatchOptions, *, lanes: int, show=None,
-                  traced=None) -> list[Solution]:
+                  traced=None, searched=None) -> list[Solution]:
     """The global search and the local rounds of equally shaped `problems` in one compiled
     pool (:func:`solve_batch`), padded to `size` problems (the last one repeated; its
     copies are dropped): the host :class:`Solution` of every start of each problem.
-    `traced()`: called once the pool's program is traced (before its first call)."""
+    `traced()`: called once the pool's program is traced (before its first call);
+    `searched()`: once its first call has returned (the program is compiled)."""
     fill = [problems[j] for j in padded_indices(len(problems), size)]
     n_z = len(fill[0].zs)
     if fill[0].pool is not None:
@@ -758,13 +855,16 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     spec = fill[0].spec
 
     def run(starts, limits):
-        nonlocal traced  # called on the first call only
+        nonlocal traced, searched  # called on the first call only
         hook, traced = traced, None
         out = jax.device_get(solve_batch(
             spec, params, datas, np.concatenate(starts), limits=np.concatenate(limits),
             workers=lanes, rtol=options.rtol, max_steps=options.max_steps,
             optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True,
             traced=hook))
+        if searched is not None:
+            done, searched = searched, None
+            done()
         return [out.take(slice(j * n_z, (j + 1) * n_z)) for j in range(len(starts))]
 
     # with local rounds to follow, the global search explores (its best is continued)

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 
 import jaxcontact as jc
-from jaxcontact._devices import memory_limit
+from jaxcontact._devices import memory_limit, usable_cores
 from jaxcontact._validate import plain
 
 from ._least_squares import LBFGS, AbstractLeastSquaresSolver, LevenbergMarquardt
@@ -399,6 +399,10 @@ class BatchOptions(_Options):
       :meth:`lanes`).
     - `devices`: the devices the chunk's starts are spread over (default `None`: every
       local device of JAX's default backend; :func:`fitting.solve_batch`).
+    - `streams`: chunks searched at the same time, each from its own host thread, an
+      integer >= 1 (default `None`: :meth:`streams_for`: on a CPU one per usable core
+      and device, on an accelerator 1). The results do not depend on it: every chunk's
+      search is its own (the same chunks, starts and rounds), only when it runs.
 
     Why the defaults differ by platform: a step of the pool costs a CPU core time in
     proportion to its lanes, and a lane idles once its start has converged, so a CPU runs
@@ -409,18 +413,24 @@ class BatchOptions(_Options):
     curves on 16 lanes 1.6 times faster than on 64); an accelerator costs about the same per step
     for one lane or $10^5$ (the step's kernels are launch-bound below that), so every start
     of a large chunk gets its own lane and the chunk's problems share every step
-    (measured: ``benchmarks/results/fit_each.md``).
+    (measured: ``benchmarks/results/fit_each.md``). A CPU searches one chunk per core at
+    once: XLA spreads one chunk's small kernels over the cores at a loss (a 256-curve map
+    on 2 cores: 1.3 times the speed of one core, 1.8 times with two chunks at once,
+    ``fit_each.md``, "Two chunks at once"); an accelerator's one device is kept busy by one.
     """
 
     chunk: int | None = None
     workers: int | None = None
     devices: Sequence | None = None
+    streams: int | None = None
 
     def __post_init__(self):
         if self.chunk is not None:
             object.__setattr__(self, "chunk", _integer("chunk", self.chunk, 1))
         if self.workers is not None:
             object.__setattr__(self, "workers", _integer("workers", self.workers, 1))
+        if self.streams is not None:
+            object.__setattr__(self, "streams", _integer("streams", self.streams, 1))
         if self.devices is not None:
             devices = tuple(self.devices)
             if not devices:
@@ -452,6 +462,20 @@ class BatchOptions(_Options):
             if limit is not None and problem_bytes:
                 size = min(size, max(1, (limit // 2) // int(problem_bytes)))
         return max(1, min(size, problems))
+
+    def streams_for(self, chunks: int) -> int:
+        """Chunks searched at once, for `chunks` chunks: `streams`; or on an accelerator 1,
+        on a CPU the usable cores (:func:`jaxcontact._devices.usable_cores`) over the
+        devices the chunks are spread over (JAX's CPU devices share the cores); never more
+        than `chunks`, at least 1."""
+        if self.streams is not None:
+            n = self.streams
+        elif self.accelerated:
+            n = 1
+        else:
+            devices = self.devices if self.devices is not None else jax.local_devices()
+            n = usable_cores() // max(1, len(devices))
+        return max(1, min(n, chunks))
 
     def lanes(self, problems: int, starts: int) -> int:
         """Lanes of the pool for `problems` problems of `starts` starts each: `workers`; or

@@ -199,6 +199,10 @@ def add_fit_arguments(parser):
     parser.add_argument("--chunk", type=int, default=None, metavar="N",
                         help="with --each: curves per compiled call (default 64 on a CPU, "
                              "4096 on a GPU)")
+    parser.add_argument("--streams", type=int, default=None, metavar="N",
+                        help="with --each: chunks searched at once, each from its own "
+                             "thread (default: one per usable CPU core on a CPU, 1 on a "
+                             "GPU; the results do not depend on it)")
     add_process_arguments(parser)  # with --each: the curves shared by several processes
     parser.add_argument("--posterior", action="store_true",
                         help="after the fit, sample the posterior of its free parameters by "
@@ -322,6 +326,8 @@ def _check(args):
         raise UsageError(f"argument --starts: must be an integer >= 1; got {args.starts}")
     if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"argument --chunk: must be an integer >= 1; got {args.chunk}")
+    if args.streams is not None and args.streams < 1:
+        raise UsageError(f"argument --streams: must be an integer >= 1; got {args.streams}")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
     if args.screen is not None and args.screen < 0:
@@ -537,7 +543,8 @@ def _run_each(args, folder, curves, options) -> int:
                 f"curve {i}: {e}" for i, e in enumerate(result.errors)))
 
     result, out = _fit_and_write(
-        args, folder, lambda: fitting.fit_each(curves, chunk=args.chunk, **options),
+        args, folder,
+        lambda: fitting.fit_each(curves, chunk=args.chunk, streams=args.streams, **options),
         write=fitting.write_each_report, figure=("map.png", "plot_map"), check=check)
     bad = len(curves) - result.n_converged
     if bad:

@@ -211,12 +211,10 @@ def _start_jax(args):
 
     # one JAX CPU device per usable core (the sweep shards its chunks over them; on a GPU
     # machine this only splits the CPU backend, which the sweep does not use)
+    from jaxcontact._devices import usable_cores
+
     try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - platforms without affinity
-        usable = os.cpu_count() or 1
-    try:
-        jax.config.update("jax_num_cpu_devices", int(args.cpu_devices or usable))
+        jax.config.update("jax_num_cpu_devices", int(args.cpu_devices or usable_cores()))
     except RuntimeError:  # JAX already started (the command called from Python)
         if args.cpu_devices is not None:
             raise UsageError("argument --cpu-devices: JAX has already started in this "

@@ -355,6 +355,7 @@ def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatc
         (["--radius", "1e-5", "--starts", "4", "--screen", "3"], "--screen"),
         (["--radius", "1e-5", "--screen", "8"], "screen must be 0 or an integer >= n_starts"),
         (["--radius", "1e-5", "--explore-steps", "0"], "--explore-steps"),
+        (["--radius", "1e-5", "--streams", "0"], "--streams: must be an integer >= 1"),
         (["--radius", "1e-5", "--out", ""], "--out"),
         (["--radius", "1e-5", "--coordinator", "h:1"], "--coordinator"),
         (["--radius", "1e-5", "--process-id", "1"], "--num-processes/--process-id"),

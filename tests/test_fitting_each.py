@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 import warnings
 
 import numpy as np
@@ -453,6 +454,91 @@ def test_finish_compiled_in_the_background_serves_the_call():
             np.testing.assert_array_equal(out, 2.5 * x)
             # other argument types than compiled for: the function itself
             assert bg.call(np.ones(4), 2.5).shape == (4,) and len(traces) == 2
+    finally:
+        jax.config.update("jax_enable_x64", before)
+
+
+def test_chunks_searched_at_once_end_where_one_stream_ends(curves):
+    # three chunks of one curve, searched one after the other and three at once (host
+    # threads, `BatchOptions.streams`), in a process whose 64-bit types are off (fit_each
+    # turns them on for its own thread; its search threads must carry that): the same
+    # optima, start for start, to the last bit
+    import jax
+
+    before = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", False)
+    try:
+        one, three = (_quiet(fitting.fit_each, curves, radius=R, n_starts=STARTS,
+                             local_rounds=1, chunk=1, streams=k, progress=False)
+                      for k in (1, 3))
+    finally:
+        jax.config.update("jax_enable_x64", before)
+    for a, b in zip(one.results, three.results, strict=True):
+        assert a.chi2 == b.chi2
+        np.testing.assert_array_equal(a.values, b.values)
+        np.testing.assert_array_equal(a.start_losses, b.start_losses)
+        np.testing.assert_array_equal(a.start_steps, b.start_steps)
+    # and where each curve ends alone (the first curve; the others: above)
+    alone = _quiet(fitting.fit, curves[0], radius=R, n_starts=STARTS, local_rounds=1,
+                   progress=False)
+    assert three.results[0].chi2 == pytest.approx(alone.chi2, rel=1e-9)
+
+
+def test_streams_take_in_order_raise_per_chunk_and_stop_when_closed():
+    """`_Streams`: results in chunk order whatever order the threads end in; the first
+    chunk's search runs alone until it says its program is compiled; an error is raised
+    by the `take` of its chunk; at most 2 × streams chunks run ahead of the one taken;
+    after `close` no chunk starts; the threads carry the caller's 64-bit setting."""
+    import threading
+
+    import jax
+    import jax.numpy as jnp
+
+    from fitting._optimise import _Streams
+
+    started, lock = [], threading.Lock()
+    gate = threading.Event()
+
+    def search(k, searched):
+        with lock:
+            started.append(k)
+        if k == 0:
+            assert started == [0]  # alone until compiled
+            searched()
+        if k == 5:
+            raise ArithmeticError("chunk 5 failed")
+        if k == 1:
+            gate.wait(10)  # chunk 1 ends after the others it may overtake
+        return k, bool(jax.config.jax_enable_x64), jnp.asarray(1.0).dtype
+
+    before = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with jax.enable_x64(True):
+            streams = _Streams(search, 12, 2)
+            assert streams.take(0) == (0, True, jnp.float64)
+            # chunk 1 holds one thread; the other runs ahead to at most 2 x 2 chunks
+            # waiting (0 taken: chunks 1-4 may start; 5 may not before 1 is taken)
+            deadline = time.monotonic() + 10
+            while len(started) < 5 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            time.sleep(0.1)
+            assert sorted(started) == [0, 1, 2, 3, 4]
+            gate.set()
+            assert [streams.take(k)[0] for k in (1, 2, 3, 4)] == [1, 2, 3, 4]
+            with pytest.raises(ArithmeticError, match="chunk 5 failed"):
+                streams.take(5)
+            assert streams.take(6) == (6, True, jnp.float64)
+            streams.close()
+            time.sleep(0.2)
+            assert max(started) <= 6 + 2 * 2  # nothing started after close
+            n = len(started)
+            time.sleep(0.2)
+            assert len(started) == n
+        # one stream: each chunk searched in the calling thread when taken
+        calls = []
+        serial = _Streams(lambda k, searched: calls.append(k) or k, 3, 1)
+        assert calls == [] and [serial.take(k) for k in range(3)] == [0, 1, 2]
     finally:
         jax.config.update("jax_enable_x64", before)
 

@@ -6,6 +6,7 @@ options are compared in tests/test_fitting_each.py, with its compiled shapes).""
 
 import dataclasses
 import inspect
+import os
 
 import jax
 import numpy as np
@@ -58,6 +59,8 @@ def test_bad_options_are_named_when_made(bad, needle):
 @pytest.mark.parametrize("bad, needle", [
     (dict(chunk=0), "chunk must be an integer >= 1; got 0"),
     (dict(workers=0), "workers must be an integer >= 1"),
+    (dict(streams=0), "streams must be an integer >= 1; got 0"),
+    (dict(streams=1.5), "streams must be an integer >= 1"),
     (dict(devices=[]), "devices: give at least one device"),
 ])
 def test_bad_batch_options_are_named_when_made(bad, needle):
@@ -157,6 +160,18 @@ def test_schedule_by_platform():
     assert small.chunk_for(20_000, problem_bytes=per // 100) == 4096
     assert cpu.chunk_for(100, problem_bytes=per * 10**6) == 64
     assert fitting.BatchOptions(workers=5, devices=[Gpu()]).lanes(100, 16) == 5
+    # chunks searched at once: one per usable core and device on a CPU (JAX's CPU devices
+    # share the cores), one on an accelerator; never more than the chunks
+    from jaxcontact._devices import usable_cores
+
+    cores = usable_cores()
+    assert cores == len(os.sched_getaffinity(0))
+    assert [cpu.streams_for(n) for n in (1, 1000)] == [1, cores]
+    two = fitting.BatchOptions(devices=jax.devices("cpu")[:1] * 2)
+    assert two.streams_for(1000) == max(1, cores // 2)
+    assert [gpu.streams_for(n) for n in (1, 1000)] == [1, 1]
+    assert fitting.BatchOptions(streams=3, devices=[Gpu()]).streams_for(1000) == 3
+    assert fitting.BatchOptions(streams=3).streams_for(2) == 2
 
 
 def test_chunk_padding_repeats_the_last_item():

@@ -29,7 +29,6 @@ similar sizes share one compiled program).
 from __future__ import annotations
 
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
@@ -38,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._devices import memory_limit
+from .._devices import memory_limit, usable_cores
 from .._processes import allgather
 from .._progress import Progress
 from .._validate import plausibility_checks, unchecked
@@ -52,7 +51,7 @@ _MAX_CHUNK = 2**20
 
 # chunks whose parameter columns are prepared ahead, in threads (numpy releases the GIL in
 # its array operations, so they run side by side and alongside the device)
-_HOST_THREADS = max(1, min(8, (os.cpu_count() or 1)))
+_HOST_THREADS = min(8, usable_cores())
 
 # host threads only for sweeps of at least this many points: starting a pool costs 0.5-2.3
 # ms on a busy 2-core CPU (more than a 10^3-point sweep's whole host path), while the work

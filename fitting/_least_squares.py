@@ -143,6 +143,14 @@ class AbstractLeastSquaresSolver(eqx.Module):
 
 
 class _LMState(eqx.Module):
+    """The state of :class:`LevenbergMarquardt`. The residuals, Jacobian and model at `z`
+    are those of the last trial point where the last step was accepted (`took`: `z` moved
+    there), else those kept before it (:meth:`LevenbergMarquardt._at_z`): a step carries
+    its trial point's values as they are and chooses at the start of the next step, so
+    that the choice reads stored arrays (chosen at the end of the step, XLA computed the
+    model's Jacobian into the choice, a second time beside the residuals: ~1/4 of a step
+    of the relaxed model, ``benchmarks/results/fit_each.md``)."""
+
     z: jax.Array
     r: jax.Array
     J: jax.Array
@@ -155,6 +163,10 @@ class _LMState(eqx.Module):
     ok: jax.Array
     result: jax.Array
     model: object = None
+    took: jax.Array | None = None
+    r_trial: jax.Array | None = None
+    J_trial: jax.Array | None = None
+    model_trial: object = None
 
 
 class LevenbergMarquardt(AbstractLeastSquaresSolver):
@@ -231,9 +243,19 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
                         lam=5e-3 * one, mu=one, steps=jnp.asarray(0), limit=limit,
                         done=limit <= 0, ok=jnp.asarray(False),
                         result=jnp.asarray(RESULTS.max_steps_reached, jnp.int32),
-                        model=model)
+                        model=model, took=jnp.asarray(False), r_trial=r, J_trial=J,
+                        model_trial=model)
+
+    @staticmethod
+    def _at_z(s):
+        """`(r, J, model)` at the state's `z` (see :class:`_LMState`)."""
+        pick = lambda new, old: jnp.where(s.took, new, old)  # noqa: E731
+        model = None if s.model is None else jax.tree.map(pick, s.model_trial, s.model)
+        return pick(s.r_trial, s.r), pick(s.J_trial, s.J), model
 
     def step(self, fn, s, ctx):
+        r_z, J_z, model_z = self._at_z(s)
+        s = dataclasses.replace(s, r=r_z, J=J_z, model=model_z)
         A = s.J.T @ s.J
         g = s.J.T @ s.r
         diag = jnp.diag(A)
@@ -280,24 +302,23 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
                              RESULTS.max_steps_reached], s.result).astype(jnp.int32)
         return _LMState(
             z=jnp.where(ok, s.z + delta, s.z),
-            r=jnp.where(ok, r_new, s.r),
-            J=jnp.where(ok, J_new, s.J),
+            r=s.r, J=s.J,
             chi2=jnp.where(ok, chi2_new, s.chi2),
             lam=lam, mu=mu, steps=steps, limit=s.limit,
             done=converged | nonfinite | stagnated | limited,
-            ok=converged, result=result,
-            model=None if s.model is None else jax.tree.map(
-                lambda new, old: jnp.where(ok, new, old), model_new, s.model),
+            ok=converged, result=result, model=s.model,
+            took=ok, r_trial=r_new, J_trial=J_new, model_trial=model_new,
         )
 
     def chi2(self, state):
         return state.chi2
 
     def last_jacobian(self, state):
-        return state.r, state.J
+        r, J, _ = self._at_z(state)
+        return r, J
 
     def last_model(self, state):
-        return state.model
+        return self._at_z(state)[2]
 
     def with_model(self):
         return dataclasses.replace(self, keep_model=True)
@@ -464,7 +485,9 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
     the solver's `max_steps`; 0: not run, its result reads `max_steps_reached` with
     $\chi^2 = \infty$ for Levenberg–Marquardt). All initial states are made first (one
     batched call); then one loop iterates all lanes; a lane whose problem is done writes
-    its result and is refilled from the queue. The loop ends when every problem is written.
+    its result and is refilled from the queue (the problems not run, limit 0, are written
+    from their initial states and take no lane). The loop ends when every problem is
+    written.
     """
     n_tasks = z0s.shape[0]
     w = max(1, min(int(workers), n_tasks))
@@ -488,34 +511,49 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         end = jax.lax.while_loop(all_done, lambda s: jax.vmap(step)(s, ctxs), states0)
         return jax.vmap(result)(end)
 
-    def collect(work, tasks, out, queued, written):
-        # the lanes whose problem has finished: written out and refilled from the queue.
-        # Done at the top of the next iteration (and once after the loop), from the carried
+    # the queue: the problems to run (not done at the start: limit > 0), in their order;
+    # the others are written as they start (their initial states' results)
+    runnable = jnp.logical_not(states0.done)
+    order = jnp.argsort(jnp.logical_not(runnable), stable=True)
+    n_run = jnp.sum(runnable)
+
+    def task(q):  # the problem at queue position q (clamped: a dead lane's stand-in)
+        return order[jnp.minimum(q, n_tasks - 1)]
+
+    def collect(work, pos, out, queued, written):
+        # the lanes whose problem has finished: written out and refilled from the queue
+        # (a lane past its end is dead: it steps a stand-in that is never written). Done
+        # at the top of the next iteration (and once after the loop), from the carried
         # state: written from the step's output, XLA fuses the Jacobian's computation into
         # both the scatter and the carry, i.e. computes it twice a step
-        finished = (tasks < n_tasks) & work.done
-        slot = jnp.where(finished, tasks, n_tasks)  # out of range: dropped
+        finished = (pos < n_run) & work.done
+        slot = jnp.where(finished, task(pos), n_tasks)  # out of range: dropped
         out = jax.tree.map(lambda o, x: o.at[slot].set(x, mode="drop"), out,
                            jax.vmap(result)(work))
         new = queued + jnp.cumsum(finished) - 1
-        refill = finished & (new < n_tasks)
-        fresh = _take(states0, jnp.minimum(new, n_tasks - 1))
+        refill = finished & (new < n_run)
+        fresh = _take(states0, task(new))
         work = jax.tree.map(
             lambda x, f: jnp.where(refill.reshape((-1,) + (1,) * (x.ndim - 1)), f, x),
             work, fresh)
-        tasks = jnp.where(finished, new, tasks)
+        pos = jnp.where(finished, new, pos)
         n_fin = jnp.sum(finished)
-        return work, tasks, out, queued + n_fin, written + n_fin
+        return work, pos, out, queued + n_fin, written + n_fin
 
     def body(c):
-        work, tasks, out, queued, written = collect(*c)
-        ctx = _take(ctxs, jnp.minimum(tasks, n_tasks - 1))
-        return jax.vmap(step)(work, ctx), tasks, out, queued, written
+        # every lane that is done has just been written and refilled, or is dead, so a
+        # step may change it: no choice of each lane's old state (that choice made XLA
+        # compute the model's Jacobian a second time, inside it: 1/4 of a step)
+        work, pos, out, queued, written = collect(*c)
+        ctx = _take(ctxs, task(pos))
+        return (jax.vmap(lambda s, x: solver.step(fn, s, x))(work, ctx), pos, out, queued,
+                written)
 
     def cond(c):  # some problem is neither written nor finished
-        work, tasks, _, _, written = c
-        return written + jnp.sum((tasks < n_tasks) & work.done) < n_tasks
+        work, pos, _, _, written = c
+        return written + jnp.sum((pos < n_run) & work.done) < n_tasks
 
-    init = (_take(states0, jnp.arange(w)), jnp.arange(w), jax.vmap(result)(states0),
-            jnp.asarray(w), jnp.asarray(0))
+    first = jnp.arange(w)
+    init = (_take(states0, task(first)), first, jax.vmap(result)(states0), jnp.asarray(w),
+            n_tasks - n_run)
     return collect(*jax.lax.while_loop(cond, body, init))[2]

@@ -167,3 +167,25 @@ def test_pool_with_a_lane_per_problem_equals_the_queued_pool(solver):
     np.testing.assert_allclose(every.z[[0, 1]], 1.0, atol=1e-4)
     if every.J is not None:
         np.testing.assert_allclose(every.J, queued.J, rtol=1e-12)
+
+
+def test_pool_lanes_past_the_queue_step_stand_ins_that_are_never_written():
+    # more lanes than problems to run (three of five not run: limit 0): the not-run
+    # problems take no lane and read their initial states, the lanes past the queue step
+    # stand-ins whose states are never written, and a lane whose problem has finished
+    # keeps stepping (no choice of its old state) after its result was written: every
+    # problem ends where the schedule with a lane per problem (each lane's own state kept
+    # once done) ends it
+    z0s = [[0.5, 2.0], [-1.2, 1.0], [2.0, 3.0], [0.0, 0.0], [2.0, 3.0]]
+    limits = np.array([0, 200, 0, 0, 4])
+    for workers in (2, 4):
+        queued = _pool(LevenbergMarquardt(max_steps=200), z0s, limits=limits,
+                       workers=workers)
+        every = _pool(LevenbergMarquardt(max_steps=200), z0s, limits=limits,
+                      workers=len(z0s))
+        assert queued.steps.tolist() == every.steps.tolist() == [0, every.steps[1], 0, 0, 5]
+        assert queued.result.tolist() == every.result.tolist()
+        np.testing.assert_array_equal(queued.z, every.z)
+        np.testing.assert_array_equal(queued.J, every.J)
+        assert queued.converged[1] and np.all(np.isinf(queued.chi2[[0, 2, 3]]))
+        np.testing.assert_allclose(queued.z[1], 1.0, atol=1e-6)

@@ -138,6 +138,12 @@ class AbstractLeastSquaresSolver(eqx.Module):
         """`(done, converged)` of a state (every state carries both flags)."""
         return state.done, state.ok
 
+    def hold(self, old, new):
+        """The state of a lane after a step from `old` to `new`: `new`, or `old` where `old`
+        had stopped (a loop that steps every lane until all have stopped; one lane's
+        state, under `vmap`)."""
+        return jax.tree.map(lambda a, b: jnp.where(old.done, a, b), old, new)
+
 
 # ---- Levenberg–Marquardt ------------------------------------------------------------------
 
@@ -323,6 +329,19 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     def with_model(self):
         return dataclasses.replace(self, keep_model=True)
 
+    def hold(self, old, new):
+        # a stopped lane keeps everything but its trial point, which is never read again
+        # (`took` False): no choice between the trial point's Jacobian and an old one, into
+        # which XLA would compute the Jacobian a second time; the residuals, Jacobian and
+        # model of `new` are those at `old.z` already (chosen from stored arrays)
+        pick = lambda a, b: jnp.where(old.done, a, b)  # noqa: E731
+        return dataclasses.replace(
+            new, z=pick(old.z, new.z), chi2=pick(old.chi2, new.chi2),
+            lam=pick(old.lam, new.lam), mu=pick(old.mu, new.mu),
+            steps=pick(old.steps, new.steps), limit=pick(old.limit, new.limit),
+            done=pick(old.done, new.done), ok=pick(old.ok, new.ok),
+            result=pick(old.result, new.result), took=pick(False, new.took))
+
 
 # ---- optax L-BFGS -------------------------------------------------------------------------
 
@@ -445,11 +464,6 @@ def residual_struct(fn, z0, ctx) -> jax.ShapeDtypeStruct:
     return known(z0, ctx) if known is not None else jax.eval_shape(fn, z0, ctx)
 
 
-def _loop(solver, fn, state, ctx):
-    return jax.lax.while_loop(lambda s: ~solver.terminate(s)[0],
-                              lambda s: solver.step(fn, s, ctx), state)
-
-
 def _solution(solver, s, keep_jacobian: bool) -> Solution:
     rj = solver.last_jacobian(s) if keep_jacobian else None
     r, J = rj if rj is not None else (None, None)
@@ -462,13 +476,24 @@ def run_starts(solver: AbstractLeastSquaresSolver, fn, z0s, ctx, *,
     """The :class:`Solution` of every start (rows of `z0s`), one vmapped loop, shared
     `ctx`."""
 
-    def one(z0):
-        return _solution(solver, _loop(solver, fn, solver.init(fn, z0, ctx), ctx),
-                         keep_jacobian)
+    states = jax.vmap(lambda z: solver.init(fn, z, ctx))(z0s)
+    return jax.vmap(lambda s: _solution(solver, s, keep_jacobian))(
+        _every_lane(solver, fn, states, lambda s: ctx, in_axes=None))
 
-    if z0s.shape[0] == 1:
-        return jax.tree.map(lambda x: x[None], one(z0s[0]))
-    return jax.vmap(one)(z0s)
+
+def _every_lane(solver, fn, states, ctx_of, *, in_axes):
+    """Step every lane (leading axis of `states`) until all have stopped, each stopped
+    lane held (:meth:`AbstractLeastSquaresSolver.hold`; a `while_loop` under `vmap` would
+    choose every leaf of every lane's state, the trial point's Jacobian included, after
+    each step). `ctx_of(states)`: the contexts, batched as `in_axes` says."""
+
+    def body(s):
+        def one(old, ctx):
+            return solver.hold(old, solver.step(fn, old, ctx))
+
+        return jax.vmap(one, in_axes=(0, in_axes))(s, ctx_of(s))
+
+    return jax.lax.while_loop(lambda s: ~jnp.all(s.done), body, states)
 
 
 def _take(tree, i):
@@ -497,19 +522,11 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         states0 = eqx.tree_at(lambda s: (s.limit, s.done), states0,
                               (limits, states0.done | (limits <= 0)))
 
-    def step(s, ctx):  # a finished lane stays as it is
-        new = solver.step(fn, s, ctx)
-        return jax.tree.map(lambda a, b: jnp.where(s.done, a, b), s, new)
-
     def result(s):
         return _solution(solver, s, keep_jacobian)
 
     if w == n_tasks:  # a lane per problem: no queue, no gather of contexts, one write
-        def all_done(s):
-            return ~jnp.all(s.done)
-
-        end = jax.lax.while_loop(all_done, lambda s: jax.vmap(step)(s, ctxs), states0)
-        return jax.vmap(result)(end)
+        return jax.vmap(result)(_every_lane(solver, fn, states0, lambda s: ctxs, in_axes=0))
 
     # the queue: the problems to run (not done at the start: limit > 0), in their order;
     # the others are written as they start (their initial states' results)

@@ -300,6 +300,20 @@ def _evaluate_chunk(spec, params, us, ps, datas, radius, *, tabor, model=True):
     return model, derived, mu
 
 
+def _in_thread(fn):
+    """`fn` wrapped to run in another thread with this thread's 64-bit setting and default
+    device (JAX's settings are local to a thread: a search traced without them would be a
+    float32 program, or on another device)."""
+    x64 = bool(jax.config.jax_enable_x64)
+    device = jax.config.jax_default_device
+
+    def run(*args, **kwargs):
+        with jax.enable_x64(x64), jax.default_device(device):
+            return fn(*args, **kwargs)
+
+    return run
+
+
 class _Background:
     """The jitted `fn` compiled in a thread for `(*args, **static)` (`static`: its static
     keywords), started by :meth:`start` (again: nothing), so that its tracing and
@@ -310,22 +324,21 @@ class _Background:
     in the thread, whose compilation a later call was meant to find: the call traced and
     compiled the finish again on the main thread (``fit_each.md``, "Repeated runs"). An
     error is left for :meth:`call`, which then calls `fn` itself. The thread traces with
-    the creating thread's 64-bit setting (`jax.enable_x64` is local to a thread: `fit`
-    turns it on for its own duration, and the thread's trace was float32 where Python
-    scalars entered it, a program the call could not use)."""
+    the creating thread's 64-bit setting and default device (:func:`_in_thread`;
+    `jax.enable_x64` is local to a thread: `fit` turns it on for its own duration, and the
+    thread's trace was float32 where Python scalars entered it, a program the call could
+    not use)."""
 
     def __init__(self, fn, *args, **static):
         self._fn, self._static, self._compiled = fn, static, None
-        x64 = bool(jax.config.jax_enable_x64)
 
         def run():
             try:
-                with jax.enable_x64(x64):
-                    self._compiled = fn.lower(*args, **static).compile()
+                self._compiled = fn.lower(*args, **static).compile()
             except Exception:  # noqa: BLE001 - the real call reports it
                 pass
 
-        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread = threading.Thread(target=_in_thread(run), daemon=True)
 
     def start(self) -> None:
         if self._thread.ident is None:
@@ -372,25 +385,23 @@ class _Streams:
         self._next, self._closed = 0, False
         self._threads = []
         if streams > 1:
-            x64 = bool(jax.config.jax_enable_x64)
-            device = jax.config.jax_default_device
+            work = _in_thread(self._work)
             for _ in range(min(streams, n)):
-                t = threading.Thread(target=self._work, args=(x64, device), daemon=True)
+                t = threading.Thread(target=work, daemon=True)
                 self._threads.append(t)
                 t.start()
 
-    def _work(self, x64, device) -> None:
-        with jax.enable_x64(x64), jax.default_device(device):
-            while True:
-                self._room.acquire()
-                with self._lock:
-                    if self._closed or self._next >= self._n:
-                        self._room.release()
-                        return
-                    k, self._next = self._next, self._next + 1
-                if k:
-                    self._first.wait()
-                self._run(k)
+    def _work(self) -> None:
+        while True:
+            self._room.acquire()
+            with self._lock:
+                if self._closed or self._next >= self._n:
+                    self._room.release()
+                    return
+                k, self._next = self._next, self._next + 1
+            if k:
+                self._first.wait()
+            self._run(k)
 
     def _run(self, k: int) -> None:
         try:

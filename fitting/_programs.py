@@ -29,6 +29,7 @@ import hashlib
 import os
 import pathlib
 import tempfile
+import threading
 from collections.abc import Callable
 
 import jax
@@ -37,6 +38,7 @@ __all__ = ["cached", "enable"]
 
 _DIR: pathlib.Path | None = None
 _LOADED: dict[tuple, Callable] = {}  # this process's programs, by file and XLA options
+_LOCK = threading.Lock()  # one thread loads or traces a program; the others then find it
 
 
 def enable(path) -> bool:
@@ -98,9 +100,15 @@ def cached(name: str, fn: Callable, args: tuple, static: dict, *,
     leaves, treedef = jax.tree.flatten(args)
     path = _DIR / f"{name}-{_key(name, treedef, leaves, static)}.jaxexport"
     options = tuple(sorted((compiler_options or {}).items()))
-    run = _LOADED.get((path, options))
-    if run is not None:  # loaded (or traced) before in this process
-        return lambda: unflatten_out(run(*leaves))
+    with _LOCK:  # (threads searching shares of one chunk at once: one trace, one program)
+        run = _LOADED.get((path, options))
+        if run is None:
+            run = _load(name, fn, path, options, treedef, leaves, static, flatten_out)
+    return lambda: unflatten_out(run(*leaves))
+
+
+def _load(name, fn, path, options, treedef, leaves, static, flatten_out) -> Callable:
+    """The program of `path` (loaded, or traced and written), jitted with `options`."""
     exported = None
     if path.exists():
         try:
@@ -124,4 +132,4 @@ def cached(name: str, fn: Callable, args: tuple, static: dict, *,
                 pass
     run = _LOADED[path, options] = jax.jit(exported.call,
                                            compiler_options=dict(options) or None)
-    return lambda: unflatten_out(run(*leaves))
+    return run

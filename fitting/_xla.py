@@ -78,9 +78,9 @@ class ModelJit:
         options = program_options(model)
         key = tuple(sorted(options.items())) if options else ()
         fn = self._jitted.get(key)
-        if fn is None:
-            fn = self._jitted[key] = jax.jit(self._fun, compiler_options=options,
-                                             **self._keywords)
+        if fn is None:  # (two threads at once: both use the first one stored)
+            fn = self._jitted.setdefault(key, jax.jit(self._fun, compiler_options=options,
+                                                      **self._keywords))
         return fn
 
     def _for(self, args, kwargs):

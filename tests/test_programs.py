@@ -107,3 +107,45 @@ def test_off_by_default_and_without_a_folder(problem):
     assert _programs.cached("solve_batch", O._solve_batch, (spec, params, datas,
                                                              jnp.asarray(zs)), {},
                             flatten_out=tuple, unflatten_out=tuple) is None
+
+
+def test_threads_asking_for_one_new_program_trace_it_once(tmp_path, monkeypatch):
+    """Threads that ask for the same program at once (the search's chunks in threads) get
+    one trace and one program: the first traces it, the others wait for it."""
+    import threading
+    import time
+
+    traces = []
+    export = jax.export.export
+
+    def slow(*a, **k):  # a trace that takes a while: the other threads ask meanwhile
+        traces.append(1)
+        time.sleep(0.2)
+        return export(*a, **k)
+
+    monkeypatch.setattr(jax.export, "export", slow)
+
+    @jax.jit
+    def f(x):
+        return 2.0 * x
+
+    got = []
+
+    def ask():
+        run = _programs.cached("g", f, (jnp.arange(3.0),), {},
+                               flatten_out=lambda y: (y,), unflatten_out=lambda t: t[0])
+        got.append(np.asarray(run()))
+
+    try:
+        assert _programs.enable(tmp_path)
+        threads = [threading.Thread(target=ask) for _ in range(3)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert len(traces) == 1 and len(list(tmp_path.glob("g-*.jaxexport"))) == 1
+        assert len(got) == 3
+        for y in got:
+            np.testing.assert_array_equal(y, 2.0 * np.arange(3.0))
+    finally:
+        _programs.enable(None)

@@ -625,6 +625,14 @@ def test_force_map_shared_by_two_processes_through_the_command_line(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one", "two"]
     a = xr.load_dataset(tmp_path / "two" / "map.nc", engine="h5netcdf")
     b = xr.load_dataset(tmp_path / "one" / "map.nc", engine="h5netcdf")
-    np.testing.assert_allclose(a["reduced_chi2"].values, b["reduced_chi2"].values, rtol=1e-9)
-    np.testing.assert_allclose(a["G0_Pa"].values, b["G0_Pa"].values, rtol=1e-6)
+    # two processes search chunks of 2 curves, one process one chunk of 4: other compiled
+    # shapes, so other round-off, and the search stops where a step changes chi2 by less
+    # than rtol = 1e-8 of it: the two end in the same optimum to that tolerance, and the
+    # parameters there agree to a small fraction of their standard errors (along a
+    # poorly determined direction a chi2 change of 1e-9 moves a parameter by more)
+    np.testing.assert_allclose(a["reduced_chi2"].values, b["reduced_chi2"].values, rtol=1e-8)
+    for name in ("G0_Pa", "G1_Pa", "work_of_adhesion_J_m2"):
+        err = b[f"{name}_stderr"].values
+        assert np.all(np.isfinite(err)), name
+        assert np.all(np.abs(a[name].values - b[name].values) <= 1e-3 * err), name
     assert a["grid_x"].values.tolist() == b["grid_x"].values.tolist()

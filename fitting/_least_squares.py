@@ -334,13 +334,11 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         # (`took` False): no choice between the trial point's Jacobian and an old one, into
         # which XLA would compute the Jacobian a second time; the residuals, Jacobian and
         # model of `new` are those at `old.z` already (chosen from stored arrays)
-        pick = lambda a, b: jnp.where(old.done, a, b)  # noqa: E731
-        return dataclasses.replace(
-            new, z=pick(old.z, new.z), chi2=pick(old.chi2, new.chi2),
-            lam=pick(old.lam, new.lam), mu=pick(old.mu, new.mu),
-            steps=pick(old.steps, new.steps), limit=pick(old.limit, new.limit),
-            done=pick(old.done, new.done), ok=pick(old.ok, new.ok),
-            result=pick(old.result, new.result), took=pick(False, new.took))
+        # (the choice between two equal arrays is no choice: XLA drops it)
+        kept = dataclasses.replace(
+            old, r=new.r, J=new.J, model=new.model, took=jnp.zeros_like(old.took),
+            r_trial=new.r_trial, J_trial=new.J_trial, model_trial=new.model_trial)
+        return jax.tree.map(lambda a, b: jnp.where(old.done, a, b), kept, new)
 
 
 # ---- optax L-BFGS -------------------------------------------------------------------------

@@ -100,7 +100,7 @@ def cached(name: str, fn: Callable, args: tuple, static: dict, *,
     leaves, treedef = jax.tree.flatten(args)
     path = _DIR / f"{name}-{_key(name, treedef, leaves, static)}.jaxexport"
     options = tuple(sorted((compiler_options or {}).items()))
-    with _LOCK:  # (threads searching shares of one chunk at once: one trace, one program)
+    with _LOCK:  # (threads searching chunks at once: one trace, one program)
         run = _LOADED.get((path, options))
         if run is None:
             run = _load(name, fn, path, options, treedef, leaves, static, flatten_out)

@@ -23,6 +23,7 @@ from jax.custom_derivatives import SymbolicZero
 
 __all__ = [
     "attached_update",
+    "decay",
     "dphi",
     "phi",
     "psi",
@@ -60,6 +61,20 @@ def psi(s):
     return jnp.where(pos, 1.0 + jnp.expm1(-ss) / ss, 0.0)
 
 
+def decay(s):
+    r"""$(e^{-s},\ \mathrm{expm1}(-s),\ \psi(s))$ for $s \ge 0$: the three factors of an
+    exact dashpot update, $\psi$ as `psi` computes it but from the same `expm1` (one
+    transcendental less per element; in the full-history model's forward-mode Jacobian,
+    one `expm1` per spring and step, about a sixth of the time: `benchmarks/results/
+    fit_each.md`). The same values as `psi` (a compiled program may round the fused
+    expression differently: within an ulp, measured)."""
+    m1 = jnp.expm1(-s)
+    pos = s > 0
+    # psi(s) = 1 + expm1(-s)/s where s > 0: `psi` evaluates expm1 at where(s > 0, s, 1),
+    # which is expm1(-s) on those elements
+    return jnp.exp(-s), m1, jnp.where(pos, 1.0 + m1 / jnp.where(pos, s, 1.0), 0.0)
+
+
 def psi_relative(s):
     r"""$\psi(s) = 1 - (1 - e^{-s})/s$ for $s \ge 0$ to a relative error of a few $\epsilon$.
 
@@ -90,9 +105,9 @@ def attached_update(v, u0, du, dt, tau):
         return jnp.reshape(z, (1,) * (rank - z.ndim) + z.shape)
 
     s = column(dt) / jnp.reshape(tau, (1,) * (rank - 1) + tau.shape)
-    e = jnp.exp(-s)
+    e, m1, ps = decay(s)
     v = jnp.reshape(v, (1,) * (rank - jnp.ndim(v)) + jnp.shape(v))
-    return v * e - column(u0) * jnp.expm1(-s) + column(du) * psi(s)
+    return v * e - column(u0) * m1 + column(du) * ps
 
 
 def states_velocity(ts, velocity, arm_ratio, tau):

@@ -81,6 +81,31 @@ def test_psi_absolute_accuracy():
     assert np.isfinite(float(jax.grad(_psi)(jnp.asarray(0.0))))
 
 
+def test_decay_factors_of_one_expm1_against_decimal_arithmetic():
+    # the dashpot update's factors (exp(-s), expm1(-s), psi(s)) from one expm1: against
+    # 50-digit decimal arithmetic, psi as `psi` evaluates it (absolute accuracy), and their
+    # derivatives against `psi`'s and the closed form -exp(-s) (absolutely: JAX
+    # differentiates expm1 as its value + 1, which loses exp(-s) below 1e-16)
+    from decimal import Decimal, getcontext
+
+    from jaxcontact._arms import decay
+
+    getcontext().prec = 50
+    s = [0.0, 1e-12, 1e-6, 5e-4, 0.1, 3.0, 50.0, 800.0]
+    e, m1, ps = (np.asarray(x) for x in decay(jnp.asarray(s)))
+    exp = [float((-Decimal(x)).exp()) for x in s]
+    np.testing.assert_allclose(e, exp, rtol=4e-16, atol=0)
+    np.testing.assert_allclose(m1, [float((-Decimal(x)).exp() - 1) for x in s], rtol=4e-16)
+    np.testing.assert_allclose(ps[1:], np.asarray(_psi(jnp.asarray(s[1:]))), rtol=0,
+                               atol=4e-16)
+    assert ps[0] == 0.0
+    for x in s[1:]:
+        grads = jax.jacfwd(lambda v: jnp.stack(decay(v)))(jnp.asarray(x))
+        exact_psi = float(jax.grad(_psi)(jnp.asarray(x)))
+        np.testing.assert_allclose(np.asarray(grads), [-exp[s.index(x)], -exp[s.index(x)],
+                                                       exact_psi], rtol=1e-14, atol=1e-16)
+
+
 @pytest.mark.parametrize(("dtype", "rtol"), [(jnp.float64, 5e-16), (jnp.float32, 2.5e-7)])
 def test_psi_relative_accuracy(dtype, rtol):
     # psi_relative: the same function to a relative error of a few epsilon at every s,

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from .._arms import attached_update, psi
+from .._arms import attached_update, decay
 from .._root import bracketed_root
 from .._sharding import pick, searchsorted
 from .._solvers import (
@@ -47,9 +47,8 @@ def refine_jumpoff(model, pre):
     lo, hi = pick(cells0.x_lo, cell), pick(cells0.x_hi, cell)
 
     def coefficients(theta):
-        s = jnp.asarray(theta * dt) / model.tau
-        e = jnp.exp(-s)
-        b = -d0 * jnp.expm1(-s) + theta * dd * psi(s)
+        e, m1, ps = decay(jnp.asarray(theta * dt) / model.tau)
+        b = -d0 * m1 + theta * dd * ps
         Gs = jnp.sum(model.Gk * (s_lo0 * e + b))
         Gm = jnp.sum(model.Gk * slope0 * e)
         alpha = 4.0 * (model.Gg * (d0 + theta * dd) - Gs + Gm * z_lo)
@@ -186,7 +185,7 @@ def refine_instability(model, pre, z0, z1, k):
 
     def equilibrium(x, theta):
         sc = jnp.asarray(theta * dt) / model.tau
-        e, m1, ps = jnp.exp(-sc), jnp.expm1(-sc), psi(sc)
+        e, m1, ps = decay(sc)
         s_x, J = field(x)
         P = jnp.sum(model.Gk * ps)
         # R = 4 (G_g d - G_inf g - sum G_k s_k) + c sqrt(x) = 0, solved for d
@@ -250,7 +249,7 @@ def _instability_radius(model, cells, a, d0, dt, theta, k, fallback):
     `fallback` where those springs are not available.
     """
     sc = jnp.asarray(theta * dt) / model.tau
-    e, m1, ps = jnp.exp(-sc), jnp.expm1(-sc), psi(sc)
+    e, m1, ps = decay(sc)
     P = jnp.sum(model.Gk * ps)
     B0 = -d0 * jnp.sum(model.Gk * m1)
     den = model.Gg - P
@@ -314,8 +313,8 @@ def front_minimum(model, pre, a_end):
     field, _ = front_field(model, V, vf, a0, d0)
 
     def e_b(theta):
-        sc = jnp.asarray(theta * dt) / model.tau
-        return jnp.exp(-sc), -d0 * jnp.expm1(-sc) + theta * dd * psi(sc)
+        e, m1, ps = decay(jnp.asarray(theta * dt) / model.tau)
+        return e, -d0 * m1 + theta * dd * ps
 
     e1, b1 = e_b(1.0)
 

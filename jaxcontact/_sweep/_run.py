@@ -82,10 +82,8 @@ def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_li
                    devices=None) -> int:
     """Curves per chunk: the memory budget per device over the estimated bytes per curve,
     a multiple of `n_devices`."""
-    per_curve = model.floats_per_curve(arms, curves) * itemsize + 256
-    budget = (memory_limit if memory_limit is not None
-              else _device_budget(devices, model, curves))
-    per_device = max(1, min(int(budget) // per_curve, _MAX_CHUNK))
+    per_device = _per_device(model, arms, itemsize, curves, memory_limit,
+                             None if memory_limit is not None else devices[0])
     # the points in as few chunks as the budget allows, of equal size (1,000 points under a
     # budget of 760 run as two chunks of 500, not 760 + 240 padded to 760), rounded up to
     # 1/8 of an octave (at most 12.5 % padding; sweeps of similar sizes share one program)
@@ -94,6 +92,16 @@ def chunk_size_for(model, arms, itemsize, curves, n_points, n_devices, memory_li
     step = 1 << max(0, (size - 1).bit_length() - 3)
     size = step * math.ceil(size / step)
     return n_devices * max(1, size)
+
+
+@lru_cache(maxsize=64)
+def _per_device(model, arms, itemsize, curves, memory_limit, device) -> int:
+    # (cached: an equinox module's bound methods are built at every access, a noticeable
+    # part of a small sweep's host time)
+    per_curve = model.floats_per_curve(arms, curves) * itemsize + 256
+    budget = (memory_limit if memory_limit is not None
+              else _device_budget((device,), model, curves))
+    return max(1, min(int(budget) // per_curve, _MAX_CHUNK))
 
 
 #: the summaries of `PointResult`, packed in this order into one output row per point

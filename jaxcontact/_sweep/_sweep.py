@@ -214,34 +214,47 @@ def sweep(
 
     # ---- plausibility of the SI inputs (the run itself works in scaled units) ----------------
     # every point's value is a coordinate value or a fixed one: those are checked (a grid's
-    # points are never expanded for it), by their extremes (two reductions per array)
+    # points are never expanded for it), by their extremes (two reductions per array). With
+    # `on_error="status"` an implausible swept value flags its points here, before the run;
+    # with "raise" the checks run while the first chunk computes (`while_running` below:
+    # they need no result, and the error is raised before anything is returned)
     flags = dict(spec.flags)
+    checked = []
     if plausibility_enabled():
         checked = [*((n, a) for n, a in spec.coords.items()),
                    *((n, np.float64(a)) for n, a in spec.fixed.items())]
+        if on_error == "status":
+            for n, a in checked:
+                kind = _PLAUSIBLE_KIND.get(parameter_info(n).kind)
+                if kind is None:
+                    continue
+                if np.ndim(a) == 1:
+                    lo, hi, _ = PLAUSIBLE[kind]
+                    mag = np.abs(a)
+                    implausible = (mag != 0) & np.isfinite(mag) & ((mag < lo) | (mag > hi))
+                    if implausible.any():
+                        f = flags.get(n, np.zeros(a.shape, np.int8)).copy()
+                        f[implausible & (f == 0)] = 4
+                        flags[n] = f
+                    continue
+                check_plausible(n, _extremes(a), kind)
+
+    def check_plausibility():  # on_error="raise": a unit mistake raises, naming its input
+        if on_error != "raise" or not checked:
+            return
         for n, a in checked:
             kind = _PLAUSIBLE_KIND.get(parameter_info(n).kind)
-            if kind is None:
-                continue
-            if on_error == "status" and np.ndim(a) == 1:
-                lo, hi, _ = PLAUSIBLE[kind]
-                mag = np.abs(a)
-                implausible = (mag != 0) & np.isfinite(mag) & ((mag < lo) | (mag > hi))
-                if implausible.any():
-                    f = flags.get(n, np.zeros(a.shape, np.int8)).copy()
-                    f[implausible & (f == 0)] = 4
-                    flags[n] = f
-                continue
-            check_plausible(n, _extremes(a), kind)
-        if on_error == "raise":
-            # the contact radius at the deepest point of the flattest profile (it grows with
-            # the depth and with every profile parameter: R, a cone's half-angle, a punch's
-            # radius) is a length too: a profile so flat that the contact would be kilometres
-            # wide (a cone's half-angle near pi/2) is a unit mistake
-            ext = {n: (np.max(a) if np.ndim(a) else a)
-                   for n, a in {**spec.coords, **spec.fixed}.items()}
-            touch = _touch_radius(spec.profile, ext[spec.profile.name], ext["depth"])
-            check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
+            if kind is not None:
+                check_plausible(n, _extremes(a), kind)
+        # the contact radius at the deepest point of the flattest profile (it grows with the
+        # depth and with every profile parameter: R, a cone's half-angle, a punch's radius)
+        # is a length too: a profile so flat that the contact would be kilometres wide (a
+        # cone's half-angle near pi/2) is a unit mistake
+        ext = {n: (np.max(a) if np.ndim(a) else a)
+               for n, a in {**spec.coords, **spec.fixed}.items()}
+        touch = _touch_radius(spec.profile, ext[spec.profile.name], ext["depth"])
+        check_plausible("the contact radius at `depth`", touch, "length", magnitude=True)
+
     bad_param, bad_reason = _point_flags(spec, flags)
     good = None if bad_param is None else bad_param == 0
     if good is not None and not good.any():
@@ -343,10 +356,14 @@ def sweep(
             attrs["cells"] = int(model.cells)
         built["ds"] = xr.Dataset(data, coords=coords, attrs=attrs)
 
+    def while_running():  # the host's work that needs no result, while the first chunk runs
+        build()
+        check_plausibility()
+
     packed, curve_data, run_info = run_points(
         model, spec.material, spec.profile, names, n_points, columns,
         dtype=np.dtype(precision), curves=curves, chunk_size=chunk_size,
-        memory_limit=memory_limit, progress=progress, while_running=build,
+        memory_limit=memory_limit, progress=progress, while_running=while_running,
     )
     ds, units = built["ds"], built["units"]
     ds.attrs.update(chunk_size=int(run_info["chunk_size"]), devices=int(run_info["devices"]),

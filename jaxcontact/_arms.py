@@ -63,16 +63,20 @@ def psi(s):
 
 def decay(s):
     r"""$(e^{-s},\ \mathrm{expm1}(-s),\ \psi(s))$ for $s \ge 0$: the three factors of an
-    exact dashpot update, $\psi$ as `psi` computes it but from the same `expm1` (one
-    transcendental less per element; in the full-history model's forward-mode Jacobian,
-    one `expm1` per spring and step, about a sixth of the time: `benchmarks/results/
-    fit_each.md`). The same values as `psi` (a compiled program may round the fused
-    expression differently: within an ulp, measured)."""
+    exact dashpot update, all from one `expm1` (per spring and step the costly part of the
+    full-history model's forward-mode Jacobian: `benchmarks/results/fit_each.md`, "One
+    transcendental a spring").
+
+    $\psi$ as `psi` computes it (the same values: `psi` evaluates `expm1` at the same
+    argument); $e^{-s}$ as $1 + \mathrm{expm1}(-s)$, whose absolute error stays below an
+    ulp of 1, as `psi`'s: what an update $v\,e^{-s} + \dots$ of a displacement needs (its
+    relative accuracy is lost below $e^{-s} \approx 10^{-16}$, where the arm has relaxed
+    and the term is below the round-off of the others)."""
     m1 = jnp.expm1(-s)
     pos = s > 0
     # psi(s) = 1 + expm1(-s)/s where s > 0: `psi` evaluates expm1 at where(s > 0, s, 1),
     # which is expm1(-s) on those elements
-    return jnp.exp(-s), m1, jnp.where(pos, 1.0 + m1 / jnp.where(pos, s, 1.0), 0.0)
+    return 1.0 + m1, m1, jnp.where(pos, 1.0 + m1 / jnp.where(pos, s, 1.0), 0.0)
 
 
 def psi_relative(s):

@@ -94,7 +94,8 @@ def test_decay_factors_of_one_expm1_against_decimal_arithmetic():
     s = [0.0, 1e-12, 1e-6, 5e-4, 0.1, 3.0, 50.0, 800.0]
     e, m1, ps = (np.asarray(x) for x in decay(jnp.asarray(s)))
     exp = [float((-Decimal(x)).exp()) for x in s]
-    np.testing.assert_allclose(e, exp, rtol=4e-16, atol=0)
+    np.testing.assert_allclose(e, exp, rtol=0, atol=2.3e-16)  # an update's accuracy
+    np.testing.assert_allclose(e[:6], exp[:6], rtol=3e-14)  # relative where e^-s >> eps
     np.testing.assert_allclose(m1, [float((-Decimal(x)).exp() - 1) for x in s], rtol=4e-16)
     np.testing.assert_allclose(ps[1:], np.asarray(_psi(jnp.asarray(s[1:]))), rtol=0,
                                atol=4e-16)

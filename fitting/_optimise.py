@@ -616,7 +616,7 @@ def _improved(chi2, before: float) -> bool:
 
 def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: int,
                   seed: int, max_steps: int, explore_steps: int, limits=None,
-                  show=None) -> list[Solution]:
+                  show=None, active: int | None = None) -> list[Solution]:
     """The local rounds of each problem after its global search (one home for :func:`fit`
     and :func:`fitting.fit_each`).
 
@@ -630,12 +630,14 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
     done gets limit 0 (not run: it costs one lane-step a start). After the rounds, a
     problem whose best end point stopped unconverged at an exploring limit is continued
     from there with `max_steps` (one more call, only if some problem needs it). Returns
-    the merged solutions.
+    the merged solutions. `active`: only the first `active` problems are searched (the
+    others, a chunk's padding, are never run: their rounds are done from the start).
     """
     outs = list(outs)
     ran = [np.full(len(o.chi2), max_steps, np.int32) if limits is None
            else np.asarray(limits[j], np.int32) for j, o in enumerate(outs)]
-    rounds = [LocalRounds() for _ in outs]
+    active = len(outs) if active is None else active
+    rounds = [LocalRounds(done=j >= active) for j in range(len(outs))]
     explore = np.full(n, min(explore_steps, max_steps), np.int32)
     explore[0] = max_steps
     for k in range(local_rounds):
@@ -665,8 +667,8 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
                      f"{_best_loss(outs[j].chi2):.8g}")
     # the best end point of a problem stopped by an exploring limit: continued
     best = [_best_index(o.chi2) for o in outs]
-    cut = [int(o.result[b]) == RESULTS.max_steps_reached and ran[j][b] < max_steps
-           for j, (o, b) in enumerate(zip(outs, best, strict=True))]
+    cut = [j < active and int(o.result[b]) == RESULTS.max_steps_reached
+           and ran[j][b] < max_steps for j, (o, b) in enumerate(zip(outs, best, strict=True))]
     if any(cut):
         starts = [np.asarray(o.z[b:b + 1]).repeat(n, axis=0) for o, b in zip(outs, best,
                                                                                 strict=True)]
@@ -881,13 +883,16 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     # with local rounds to follow, the global search explores (its best is continued)
     first = np.full(n_z, options.max_steps if options.local_rounds == 0
                     else min(options.explore_steps, options.max_steps), np.int32)
-    outs = run([pb.zs for pb in fill], [first] * size)
-    # a problem whose rounds are done is not run
+    # the padding's copies (one compiled shape for every chunk) are never run (limit 0:
+    # no lane takes them), nor are problems whose rounds are done
+    n = len(problems)
+    limits = [first if j < n else np.zeros(n_z, np.int32) for j in range(size)]
+    outs = run([pb.zs for pb in fill], limits)
     outs = _local_search([pb.param for pb in fill], outs, run, n=n_z,
                          local_rounds=options.local_rounds, seed=options.seed,
                          max_steps=options.max_steps, explore_steps=options.explore_steps,
-                         limits=[first] * size, show=show)
-    return outs[:len(problems)]
+                         limits=limits, show=show, active=n)
+    return outs[:n]
 
 
 #: Screened points evaluated at once per problem (bounds the memory of a screen like that

@@ -393,8 +393,9 @@ class BatchOptions(_Options):
     **Fields:**
 
     - `chunk`: curves per compiled call, an integer >= 1 (default `None`: 64 on a CPU,
-      4,096 on an accelerator; :meth:`chunk_for`); every chunk has one shape (the last one
-      padded), so one compilation serves all.
+      fewer where a small map would leave a stream without a chunk; 4,096 on an
+      accelerator; :meth:`chunk_for`); every chunk has one shape (the last one padded with
+      copies that are never run), so one compilation serves all.
     - `workers`: lanes of the pool of starts per device, an integer >= 1 (default `None`:
       :meth:`lanes`).
     - `devices`: the devices the chunk's starts are spread over (default `None`: every
@@ -447,14 +448,21 @@ class BatchOptions(_Options):
         return jax.default_backend() != "cpu"
 
     def chunk_for(self, problems: int, *, problem_bytes: int | None = None) -> int:
-        """Problems per compiled call for `problems` problems: `chunk`, or 64 on a CPU and
-        4,096 on an accelerator, fewer where `problem_bytes` (an upper estimate of one
+        """Problems per compiled call for `problems` problems: `chunk`, or on a CPU 64
+        (the problems over the streams of :meth:`streams_for` where 64 would give fewer
+        chunks than streams), and 4,096 on an accelerator, fewer where `problem_bytes` (an
+        upper estimate of one
         problem's device memory during the search, all its starts) times the chunk would
         pass half of the device's memory; never more than `problems`."""
         if self.chunk is not None:
             size = self.chunk
         elif not self.accelerated:
-            size = _CPU_CHUNK
+            # a map of fewer chunks than streams split so that every stream has one
+            # (faster than one chunk whose kernels XLA spreads over the cores:
+            # benchmarks/results/fit_each.md, "A small map's chunks")
+            streams = self._streams()
+            size = (_CPU_CHUNK if -(-problems // _CPU_CHUNK) >= streams
+                    else -(-problems // streams))
         else:
             size = _ACCELERATOR_CHUNK
             device = self.devices[0] if self.devices is not None else jax.local_devices()[0]
@@ -468,14 +476,15 @@ class BatchOptions(_Options):
         on a CPU the usable cores (:func:`jaxcontact._devices.usable_cores`) over the
         devices the chunks are spread over (JAX's CPU devices share the cores); never more
         than `chunks`, at least 1."""
+        return max(1, min(self._streams(), chunks))
+
+    def _streams(self) -> int:
         if self.streams is not None:
-            n = self.streams
-        elif self.accelerated:
-            n = 1
-        else:
-            devices = self.devices if self.devices is not None else jax.local_devices()
-            n = usable_cores() // max(1, len(devices))
-        return max(1, min(n, chunks))
+            return self.streams
+        if self.accelerated:
+            return 1
+        devices = self.devices if self.devices is not None else jax.local_devices()
+        return max(1, usable_cores() // max(1, len(devices)))
 
     def lanes(self, problems: int, starts: int) -> int:
         """Lanes of the pool for `problems` problems of `starts` starts each: `workers`; or

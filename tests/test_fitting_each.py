@@ -484,6 +484,33 @@ def test_chunks_searched_at_once_end_where_one_stream_ends(curves):
     assert three.results[0].chi2 == pytest.approx(alone.chi2, rel=1e-9)
 
 
+def test_a_chunks_padding_costs_no_step(curves, monkeypatch):
+    # three curves in chunks of two: the second chunk is padded with a copy of its curve
+    # (one compiled shape); every Levenberg-Marquardt step the pool runs belongs to a real
+    # curve's start (before: the copy ran its own search and rounds)
+    import jax
+
+    from fitting import _optimise
+
+    ran, real = [], _optimise.solve_batch
+
+    def counting(*args, **kw):
+        out = real(*args, **kw)
+        ran.append(int(np.sum(jax.device_get(out.steps))))
+        return out
+
+    monkeypatch.setattr(_optimise, "solve_batch", counting)
+    padded = _quiet(fitting.fit_each, curves, radius=R, n_starts=STARTS, local_rounds=1,
+                    chunk=2, streams=1, progress=False)
+    assert len(ran) >= 2
+    assert sum(ran) == sum(int(np.sum(r.start_steps)) for r in padded.results)
+    monkeypatch.undo()
+    whole = _quiet(fitting.fit_each, curves, radius=R, n_starts=STARTS, local_rounds=1,
+                   chunk=3, progress=False)
+    for a, b in zip(padded.results, whole.results, strict=True):
+        assert a.chi2 == pytest.approx(b.chi2, rel=1e-9)
+
+
 def test_streams_take_in_order_raise_per_chunk_and_stop_when_closed():
     """`_Streams`: results in chunk order whatever order the threads end in; the first
     chunk's search runs alone until it says its program is compiled; an error is raised

@@ -140,7 +140,16 @@ def test_schedule_by_platform():
     cpu = fitting.BatchOptions(devices=jax.devices("cpu")[:1])
     gpu = fitting.BatchOptions(devices=[Gpu()])
     assert not cpu.accelerated and gpu.accelerated
-    assert [cpu.chunk_for(n) for n in (1, 5, 100)] == [1, 5, 64]
+    # a CPU's chunk: 64, or, where that would leave a stream (one per usable core) without
+    # a chunk, the problems over the streams
+    from jaxcontact._devices import usable_cores
+
+    cores = usable_cores()
+    assert [cpu.chunk_for(n) for n in (1, 5, 64 * cores, 64 * cores + 1)] == [
+        1, -(-5 // cores), 64, 64]
+    one, four = (fitting.BatchOptions(streams=k, devices=jax.devices("cpu")[:1]) for k in (1, 4))
+    assert [one.chunk_for(n) for n in (5, 100)] == [5, 64]
+    assert [four.chunk_for(n) for n in (100, 192, 193, 256)] == [25, 48, 64, 64]
     assert [gpu.chunk_for(n) for n in (1, 300, 20_000)] == [1, 300, 4096]
     assert [cpu.lanes(p, 16) for p in (1, 4, 8, 16, 100)] == [8, 8, 16, 32, 64]
     assert cpu.lanes(1, 4) == 4  # never more lanes than starts
@@ -158,13 +167,10 @@ def test_schedule_by_platform():
     small = fitting.BatchOptions(devices=[SmallGpu()])
     assert small.chunk_for(20_000, problem_bytes=per) == (8 * 2**30) // per == 873
     assert small.chunk_for(20_000, problem_bytes=per // 100) == 4096
-    assert cpu.chunk_for(100, problem_bytes=per * 10**6) == 64
+    assert cpu.chunk_for(1000, problem_bytes=per * 10**6) == 64
     assert fitting.BatchOptions(workers=5, devices=[Gpu()]).lanes(100, 16) == 5
     # chunks searched at once: one per usable core and device on a CPU (JAX's CPU devices
     # share the cores), one on an accelerator; never more than the chunks
-    from jaxcontact._devices import usable_cores
-
-    cores = usable_cores()
     assert cores == len(os.sched_getaffinity(0))
     assert [cpu.streams_for(n) for n in (1, 1000)] == [1, cores]
     two = fitting.BatchOptions(devices=jax.devices("cpu")[:1] * 2)

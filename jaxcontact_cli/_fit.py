@@ -198,7 +198,8 @@ def add_fit_arguments(parser):
                             "several single-curve files: e.g. different speeds)")
     parser.add_argument("--chunk", type=int, default=None, metavar="N",
                         help="with --each: curves per compiled call (default 64 on a CPU, "
-                             "4096 on a GPU)")
+                             "fewer where a small map would leave a --streams idle; 4096 on a "
+                             "GPU)")
     parser.add_argument("--streams", type=int, default=None, metavar="N",
                         help="with --each: chunks searched at once, each from its own "
                              "thread (default: one per usable CPU core on a CPU, 1 on a "

@@ -71,8 +71,8 @@ def default_precision() -> str:
     return "float64" if jax.default_backend() == "cpu" else "float32"
 
 
-def _device_budget(devices, model, curves) -> int:
-    limit = memory_limit(devices[0])
+def _device_budget(device, model, curves) -> int:
+    limit = memory_limit(device)
     if limit is not None:
         return limit // 2
     return int(model.cpu_chunk_budget(curves))
@@ -100,7 +100,7 @@ def _per_device(model, arms, itemsize, curves, memory_limit, device) -> int:
     # part of a small sweep's host time)
     per_curve = model.floats_per_curve(arms, curves) * itemsize + 256
     budget = (memory_limit if memory_limit is not None
-              else _device_budget((device,), model, curves))
+              else _device_budget(device, model, curves))
     return max(1, min(int(budget) // per_curve, _MAX_CHUNK))
 
 

@@ -219,33 +219,29 @@ def sweep(
     # with "raise" the checks run while the first chunk computes (`while_running` below:
     # they need no result, and the error is raised before anything is returned)
     flags = dict(spec.flags)
-    checked = []
+    checked = []  # (name, values, plausibility kind) of every input with a plausible range
     if plausibility_enabled():
-        checked = [*((n, a) for n, a in spec.coords.items()),
-                   *((n, np.float64(a)) for n, a in spec.fixed.items())]
-        if on_error == "status":
-            for n, a in checked:
-                kind = _PLAUSIBLE_KIND.get(parameter_info(n).kind)
-                if kind is None:
-                    continue
-                if np.ndim(a) == 1:
-                    lo, hi, _ = PLAUSIBLE[kind]
-                    mag = np.abs(a)
-                    implausible = (mag != 0) & np.isfinite(mag) & ((mag < lo) | (mag > hi))
-                    if implausible.any():
-                        f = flags.get(n, np.zeros(a.shape, np.int8)).copy()
-                        f[implausible & (f == 0)] = 4
-                        flags[n] = f
-                    continue
+        values = [*spec.coords.items(), *((n, np.float64(a)) for n, a in spec.fixed.items())]
+        checked = [(n, a, _PLAUSIBLE_KIND[parameter_info(n).kind]) for n, a in values
+                   if parameter_info(n).kind in _PLAUSIBLE_KIND]
+    if on_error == "status":
+        for n, a, kind in checked:
+            if np.ndim(a) == 0:
                 check_plausible(n, _extremes(a), kind)
+                continue
+            lo, hi, _ = PLAUSIBLE[kind]
+            mag = np.abs(a)
+            implausible = (mag != 0) & np.isfinite(mag) & ((mag < lo) | (mag > hi))
+            if implausible.any():
+                f = flags.get(n, np.zeros(a.shape, np.int8)).copy()
+                f[implausible & (f == 0)] = 4
+                flags[n] = f
 
     def check_plausibility():  # on_error="raise": a unit mistake raises, naming its input
         if on_error != "raise" or not checked:
             return
-        for n, a in checked:
-            kind = _PLAUSIBLE_KIND.get(parameter_info(n).kind)
-            if kind is not None:
-                check_plausible(n, _extremes(a), kind)
+        for n, a, kind in checked:
+            check_plausible(n, _extremes(a), kind)
         # the contact radius at the deepest point of the flattest profile (it grows with the
         # depth and with every profile parameter: R, a cone's half-angle, a punch's radius)
         # is a length too: a profile so flat that the contact would be kilometres wide (a

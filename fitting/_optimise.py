@@ -616,7 +616,7 @@ def _improved(chi2, before: float) -> bool:
 
 def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: int,
                   seed: int, max_steps: int, explore_steps: int, limits=None,
-                  show=None, active: int | None = None) -> list[Solution]:
+                  show=None) -> list[Solution]:
     """The local rounds of each problem after its global search (one home for :func:`fit`
     and :func:`fitting.fit_each`).
 
@@ -630,14 +630,14 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
     done gets limit 0 (not run: it costs one lane-step a start). After the rounds, a
     problem whose best end point stopped unconverged at an exploring limit is continued
     from there with `max_steps` (one more call, only if some problem needs it). Returns
-    the merged solutions. `active`: only the first `active` problems are searched (the
-    others, a chunk's padding, are never run: their rounds are done from the start).
+    the merged solutions. A problem none of whose starts ran (limit 0: a chunk's
+    padding) is not searched further: no rounds, no continuation.
     """
     outs = list(outs)
     ran = [np.full(len(o.chi2), max_steps, np.int32) if limits is None
            else np.asarray(limits[j], np.int32) for j, o in enumerate(outs)]
-    active = len(outs) if active is None else active
-    rounds = [LocalRounds(done=j >= active) for j in range(len(outs))]
+    searched = [bool(r.any()) for r in ran]
+    rounds = [LocalRounds(done=not on) for on in searched]
     explore = np.full(n, min(explore_steps, max_steps), np.int32)
     explore[0] = max_steps
     for k in range(local_rounds):
@@ -667,7 +667,7 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
                      f"{_best_loss(outs[j].chi2):.8g}")
     # the best end point of a problem stopped by an exploring limit: continued
     best = [_best_index(o.chi2) for o in outs]
-    cut = [j < active and int(o.result[b]) == RESULTS.max_steps_reached
+    cut = [searched[j] and int(o.result[b]) == RESULTS.max_steps_reached
            and ran[j][b] < max_steps for j, (o, b) in enumerate(zip(outs, best, strict=True))]
     if any(cut):
         starts = [np.asarray(o.z[b:b + 1]).repeat(n, axis=0) for o, b in zip(outs, best,
@@ -856,7 +856,8 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
                   traced=None, searched=None) -> list[Solution]:
     """The global search and the local rounds of equally shaped `problems` in one compiled
     pool (:func:`solve_batch`), padded to `size` problems (the last one repeated; its
-    copies are dropped): the host :class:`Solution` of every start of each problem.
+    copies are never run, and dropped): the host :class:`Solution` of every start of each
+    problem.
     `traced()`: called once the pool's program is traced (before its first call);
     `searched()`: once its first call has returned (the program is compiled)."""
     fill = [problems[j] for j in padded_indices(len(problems), size)]
@@ -891,7 +892,7 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     outs = _local_search([pb.param for pb in fill], outs, run, n=n_z,
                          local_rounds=options.local_rounds, seed=options.seed,
                          max_steps=options.max_steps, explore_steps=options.explore_steps,
-                         limits=limits, show=show, active=n)
+                         limits=limits, show=show)
     return outs[:n]
 
 

@@ -451,9 +451,9 @@ class BatchOptions(_Options):
         """Problems per compiled call for `problems` problems: `chunk`, or on a CPU 64
         (the problems over the streams of :meth:`streams_for` where 64 would give fewer
         chunks than streams), and 4,096 on an accelerator, fewer where `problem_bytes` (an
-        upper estimate of one
-        problem's device memory during the search, all its starts) times the chunk would
-        pass half of the device's memory; never more than `problems`."""
+        upper estimate of one problem's device memory during the search, all its starts)
+        times the chunk would pass half of the device's memory; never more than
+        `problems`."""
         if self.chunk is not None:
             size = self.chunk
         elif not self.accelerated:

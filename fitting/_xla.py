@@ -1,6 +1,7 @@
 """XLA options for the CPU that make the fitting programs faster: per compiled program, by
 forward model (:func:`program_options`, :class:`ModelJit`: the one home of that choice), and
-for a whole process (:func:`tune_xla_cpu`)."""
+for a whole process (:func:`tune_xla_cpu`). Whether and when options may be given at all is
+:func:`jaxcontact._xla.tuning_possible`'s (one rule for the package)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import os
 import sys
 
 import jax
+
+from jaxcontact._xla import tuning_possible
 
 __all__ = ["XLA_CPU_FLAGS", "tune_xla_cpu", "program_options", "ModelJit"]
 
@@ -24,23 +27,6 @@ _PROGRAM_OPTIONS = {"history": {"xla_cpu_use_fusion_emitters": False}}
 XLA_CPU_FLAGS = tuple(f"--{k}={str(v).lower()}" for k, v in _PROGRAM_OPTIONS["history"].items())
 
 
-@functools.lru_cache(maxsize=1)
-def _jaxlib_minor() -> tuple[int, ...]:
-    try:
-        import jaxlib
-
-        return tuple(int(x) for x in jaxlib.__version__.split(".")[:2])
-    except Exception:  # pragma: no cover - unusual installs
-        return ()
-
-
-def _tuning_possible() -> bool:
-    """The options may be given: not switched off (``JAXCONTACT_XLA_TUNING=0``) and known
-    to exist (jaxlib 0.10: an unknown option makes XLA abort)."""
-    return (os.environ.get("JAXCONTACT_XLA_TUNING", "1") != "0"
-            and _jaxlib_minor() == (0, 10))
-
-
 def program_options(model: str) -> dict | None:
     """The XLA compiler options of a fitting program of the forward model `model`
     ("relaxed" or "history"), for ``jax.jit(..., compiler_options=...)``; `None`: XLA's
@@ -48,14 +34,17 @@ def program_options(model: str) -> dict | None:
 
     The full-history model's search runs XLA's older CPU fusion emitters
     (``xla_cpu_use_fusion_emitters=False``), the relaxed model's the default newer ones
-    (`_PROGRAM_OPTIONS`, measured). An option of a program overrides the process's
-    ``XLA_FLAGS``, so none is given where ``XLA_FLAGS`` already names it (the user's
-    choice), with ``JAXCONTACT_XLA_TUNING=0``, where the option is not known to exist
-    (jaxlib other than 0.10: an unknown option fails the compilation), or where JAX's
-    default backend is not the CPU (the option chooses the CPU's code generator only).
-    Results agree to round-off."""
+    (`_PROGRAM_OPTIONS`, measured). Not the sweep's 512-bit vectors on AMD's AVX-512
+    (:func:`jaxcontact._xla.cpu_options`): they make the objective's Jacobian faster but the
+    full-history map's search slower (``benchmarks/results/fit_each.md``, "512-bit
+    vectors"). An option of a program overrides the process's ``XLA_FLAGS``, so none is
+    given where ``XLA_FLAGS`` already names it (the user's choice), with
+    ``JAXCONTACT_XLA_TUNING=0``, where the option is not known to exist (jaxlib other than
+    0.10: an unknown option fails the compilation), or where JAX's default backend is not
+    the CPU (the option chooses the CPU's code generator only). Results agree to
+    round-off."""
     chosen = _PROGRAM_OPTIONS.get(model)
-    if not chosen or not _tuning_possible() or jax.default_backend() != "cpu":
+    if not chosen or not tuning_possible() or jax.default_backend() != "cpu":
         return None
     flags = os.environ.get("XLA_FLAGS", "")
     chosen = {k: v for k, v in chosen.items() if k not in flags}
@@ -128,7 +117,7 @@ def tune_xla_cpu() -> list[str]:
     relaxed-start `retract` 5-8x in float32, the relaxed model's search 1.2x; jaxlib
     0.10.2, 2-core CPU), so the other commands of the command line keep XLA's default.
     """
-    if not _tuning_possible():
+    if not tuning_possible():
         return []
     if "jax" in sys.modules:
         from jax._src import xla_bridge

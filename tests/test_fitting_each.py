@@ -652,14 +652,19 @@ def test_force_map_shared_by_two_processes_through_the_command_line(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one", "two"]
     a = xr.load_dataset(tmp_path / "two" / "map.nc", engine="h5netcdf")
     b = xr.load_dataset(tmp_path / "one" / "map.nc", engine="h5netcdf")
-    # two processes search chunks of 2 curves, one process one chunk of 4: other compiled
-    # shapes, so other round-off, and the search stops where a step changes chi2 by less
-    # than rtol = 1e-8 of it: the two end in the same optimum to that tolerance, and the
-    # parameters there agree to a small fraction of their standard errors (along a
-    # poorly determined direction a chi2 change of 1e-9 moves a parameter by more)
-    np.testing.assert_allclose(a["reduced_chi2"].values, b["reduced_chi2"].values, rtol=1e-8)
+    # two processes search their 2 curves each in chunks of 1 (a CPU map of fewer chunks
+    # than streams is split over the streams: `BatchOptions.chunk_for`), one process its 4
+    # in chunks of 2, padded to other lengths: other compiled shapes, so other round-off.
+    # A start stops where an accepted step lowers chi2 by less than rtol = 1e-8 of it (a
+    # rule on its last step, not a bound on its distance to the optimum: measured 3.9e-8
+    # apart on one curve), so the two end in the same optimum to a few rtol, and the
+    # parameters there agree to a small fraction of their standard errors: a chi2 a
+    # relative 4e-8 above the optimum (4e-8 x chi2_red x n_data in chi2) is a step of
+    # sqrt(2 x 4e-8 x n_data) ~ 0.007 standard errors along the weakest direction
+    # (measured: 0.003 for G0 on that curve)
+    np.testing.assert_allclose(a["reduced_chi2"].values, b["reduced_chi2"].values, rtol=1e-6)
     for name in ("G0_Pa", "G1_Pa", "work_of_adhesion_J_m2"):
         err = b[f"{name}_stderr"].values
         assert np.all(np.isfinite(err)), name
-        assert np.all(np.abs(a[name].values - b[name].values) <= 1e-3 * err), name
+        assert np.all(np.abs(a[name].values - b[name].values) <= 2e-2 * err), name
     assert a["grid_x"].values.tolist() == b["grid_x"].values.tolist()

@@ -35,13 +35,13 @@ def program_options(model: str) -> dict | None:
     The full-history model's search runs XLA's older CPU fusion emitters
     (``xla_cpu_use_fusion_emitters=False``), the relaxed model's the default newer ones
     (`_PROGRAM_OPTIONS`, measured). Not the sweep's 512-bit vectors on AMD's AVX-512
-    (:func:`jaxcontact._xla.cpu_options`): they make the objective's Jacobian faster but the
-    full-history map's search slower (``benchmarks/results/fit_each.md``, "512-bit
-    vectors"). An option of a program overrides the process's ``XLA_FLAGS``, so none is
-    given where ``XLA_FLAGS`` already names it (the user's choice), with
-    ``JAXCONTACT_XLA_TUNING=0``, where the option is not known to exist (jaxlib other than
-    0.10: an unknown option fails the compilation), or where JAX's default backend is not
-    the CPU (the option chooses the CPU's code generator only). Results agree to
+    (:func:`jaxcontact._xla.cpu_options`): they make the search's pool faster but the
+    full-history map slower in more of its runs (``benchmarks/results/fit_each.md``,
+    "512-bit vectors"). An option of a program overrides the process's ``XLA_FLAGS``, so
+    none is given where ``XLA_FLAGS`` already names it (the user's choice), with
+    ``JAXCONTACT_XLA_TUNING=0``, where the option is not known to exist (jaxlib other
+    than 0.10: an unknown option fails the compilation), or where JAX's default backend
+    is not the CPU (the option chooses the CPU's code generator only). Results agree to
     round-off."""
     chosen = _PROGRAM_OPTIONS.get(model)
     if not chosen or not tuning_possible() or jax.default_backend() != "cpu":

@@ -8,8 +8,9 @@ AVX-512. On AMD's AVX-512 (Zen 4 and later: no clock penalty for 512-bit instruc
 512-bit vectors make the sweep's chunks faster, measured on an AMD EPYC of family 26 (jaxlib
 0.10.2; the same numbers to the bit): a 10^3-point relaxed chunk 11 %, 10^5 points up to 20 %
 (``benchmarks/results/sweep.md``, section 11). Not the fitting's programs: there the
-objective's Jacobian is 8 % faster but the full-history map's search 15 % slower, the relaxed
-map's the same within noise (``benchmarks/results/fit_each.md``, "512-bit vectors"). Other
+objective's Jacobian and the search's pool are 8-11 % faster, but the full-history map ran a
+third slower in more of its runs (7 of 11 against 2 of 11), the relaxed map the same within
+noise (``benchmarks/results/fit_each.md``, "512-bit vectors"). Other
 CPUs keep XLA's default: on some Intel parts 512-bit instructions lower the clock, and
 nothing else was measured.
 

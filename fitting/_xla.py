@@ -1,7 +1,7 @@
 """XLA options for the CPU that make the fitting programs faster: per compiled program, by
 forward model (:func:`program_options`, :class:`ModelJit`: the one home of that choice), and
-for a whole process (:func:`tune_xla_cpu`). Whether and when options may be given at all is
-:func:`jaxcontact._xla.tuning_possible`'s (one rule for the package)."""
+for a whole process (:func:`tune_xla_cpu`). Whether, when and which options may be given at
+all is :func:`jaxcontact._xla.given`'s (one rule for the package)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import sys
 
 import jax
 
-from jaxcontact._xla import tuning_possible
+from jaxcontact._xla import given, tuning_possible
 
 __all__ = ["XLA_CPU_FLAGS", "tune_xla_cpu", "program_options", "ModelJit"]
 
@@ -43,12 +43,7 @@ def program_options(model: str) -> dict | None:
     than 0.10: an unknown option fails the compilation), or where JAX's default backend
     is not the CPU (the option chooses the CPU's code generator only). Results agree to
     round-off."""
-    chosen = _PROGRAM_OPTIONS.get(model)
-    if not chosen or not tuning_possible() or jax.default_backend() != "cpu":
-        return None
-    flags = os.environ.get("XLA_FLAGS", "")
-    chosen = {k: v for k, v in chosen.items() if k not in flags}
-    return chosen or None
+    return given(_PROGRAM_OPTIONS.get(model))
 
 
 class ModelJit:

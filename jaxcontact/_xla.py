@@ -1,5 +1,5 @@
 """XLA's compiler options for the CPU where they make this package's programs faster, and
-the one rule of when options may be given at all (:func:`tuning_possible`, also for the
+the one rule of when and which options may be given at all (:func:`given`, also for the
 fitting's per-model options, :func:`fitting._xla.program_options`).
 
 **Vector width** (:func:`cpu_options`, the sweep's chunks). XLA compiles its CPU kernels for
@@ -26,7 +26,7 @@ import os
 
 import jax
 
-__all__ = ["cpu_options", "cpu_vector_width", "tuning_possible"]
+__all__ = ["cpu_options", "cpu_vector_width", "given", "tuning_possible"]
 
 #: XLA's option of the preferred vector width of its CPU kernels [bits].
 VECTOR_WIDTH_OPTION = "xla_cpu_prefer_vector_width"
@@ -77,20 +77,21 @@ def cpu_vector_width() -> int | None:
     return 512 if vendor == "AuthenticAMD" and "avx512f" in flags else None
 
 
-def cpu_options(options: dict | None = None, *, platform: str | None = None) -> dict | None:
-    """XLA compiler options for a program on `platform` (default: JAX's default backend),
-    for ``jax.jit(..., compiler_options=...)``: `options` (a caller's own CPU options) and
-    the host's vector width (:func:`cpu_vector_width`); `None` for XLA's defaults.
-
-    Nothing on a platform other than the CPU, with ``JAXCONTACT_XLA_TUNING=0`` or with a
-    jaxlib other than 0.10 (:func:`tuning_possible`); an option named in ``XLA_FLAGS`` is
-    left to it."""
-    if not tuning_possible() or (platform or jax.default_backend()) != "cpu":
+def given(options: dict | None, *, platform: str | None = None) -> dict | None:
+    """`options` as they may be given to XLA for a program on `platform` (default: JAX's
+    default backend), for ``jax.jit(..., compiler_options=...)``; `None` for XLA's defaults:
+    nothing on a platform other than the CPU (they are CPU options), with
+    ``JAXCONTACT_XLA_TUNING=0`` or with a jaxlib other than 0.10 (:func:`tuning_possible`);
+    an option named in ``XLA_FLAGS`` is left to it (the user's choice)."""
+    if not options or not tuning_possible() or (platform or jax.default_backend()) != "cpu":
         return None
-    chosen = dict(options or {})
-    width = cpu_vector_width()
-    if width is not None:
-        chosen.setdefault(VECTOR_WIDTH_OPTION, width)
     flags = os.environ.get("XLA_FLAGS", "")
-    chosen = {k: v for k, v in chosen.items() if k not in flags}
+    chosen = {k: v for k, v in options.items() if k not in flags}
     return chosen or None
+
+
+def cpu_options(*, platform: str | None = None) -> dict | None:
+    """The host's CPU options (:func:`cpu_vector_width`) as they may be given for a program
+    on `platform` (:func:`given`)."""
+    width = cpu_vector_width()
+    return given(None if width is None else {VECTOR_WIDTH_OPTION: width}, platform=platform)

@@ -87,9 +87,9 @@ def test_sweep_compiled_with_the_cpu_options_gives_the_same_numbers(monkeypatch)
     # default width (to round-off) and as the flag off
     seen = []
 
-    def recording(options=None, *, platform=None):
+    def recording(*, platform=None):
         seen.append(platform)
-        return jc_xla.cpu_options(options, platform=platform)
+        return jc_xla.cpu_options(platform=platform)
 
     points = dict(G0=np.array([1e4, 3e4]), G1=5e3, eta1=np.array([7.5e3, 2e2]),
                   work_of_adhesion=5e-3, velocity=1e-6, R=1e-5, depth=1e-6)

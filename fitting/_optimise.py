@@ -86,6 +86,7 @@ from ._prepare import (
     CurveBatch,
     contact_point_mode,
     prepare_curves,
+    retract_ends,
     select_fit_segments,
     stack_batches,
 )
@@ -1097,10 +1098,9 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
 
     t0 = time.perf_counter()
     p = param.to_natural_host(u)
-    no_jump = not np.any(np.asarray(data.detaches) > 0)
     unc = gauss_newton(param, u, r, J, names, n_data=data.n_measured,
-                       weights=np.asarray(data.weight).ravel(), no_detachment=no_jump,
-                       warn=warn)
+                       weights=np.asarray(data.weight).ravel(),
+                       retract_ends=retract_ends(data), warn=warn)
     quality = pre["quality"]
     k = int(sum(1 for i in param.free if not unc.status[i].startswith("at ")))
     n = data.n_measured

@@ -261,6 +261,39 @@ def _jump_index(f: np.ndarray, sigma: float) -> int | None:
     return i_min + j + 1
 
 
+def retract_end(f: np.ndarray, sigma: float, weight=None, *, jumps: bool | None = None
+                ) -> str:
+    r"""How the retract forces `f` (baselined, in order; `weight`: the measured samples each
+    stands for, default 1) end: ``"jump-off"`` (a sharp return to the baseline after the
+    most tensile value: :func:`_jump_index`, or `jumps` when given), ``"no adhesion"``
+    (never below $-3\sigma$), ``"held"`` (no jump-off, and the last tenth of the retract,
+    at least 3 samples, still below $-3\sigma$ on average: the lift ended before the
+    contact let go) or ``"gradual"`` (no jump-off, back to the baseline by the end: a slow
+    peel, tethers)."""
+    f = np.asarray(f, dtype=float)
+    if jumps if jumps is not None else _jump_index(f, sigma) is not None:
+        return "jump-off"
+    if f.size == 0 or float(f.min()) > -3.0 * sigma:
+        return "no adhesion"
+    k = max(3, f.size // 10)
+    w = np.ones(f.size) if weight is None else np.asarray(weight, dtype=float)
+    tail = float(np.sum(w[-k:] * f[-k:]) / max(float(np.sum(w[-k:])), 1e-300))
+    return "held" if tail < -3.0 * sigma else "gradual"
+
+
+def retract_ends(data: CurveBatch) -> list[str]:
+    """:func:`retract_end` of every curve of `data` over its kept retract samples, each
+    weighted by the measured samples it stands for; whether it jumps off is the
+    preparation's (`detaches`, found on all measured samples)."""
+    f, seg, valid, w, sig, jumps = (np.asarray(x) for x in (
+        data.force, data.segment, data.valid, data.weight, data.sigma, data.detaches))
+    out = []
+    for c in range(f.shape[0]):
+        m = (valid[c] > 0) & (seg[c] == SEGMENTS.index("retract")) & (w[c] > 0)
+        out.append(retract_end(f[c, m], float(sig[c]), w[c, m], jumps=bool(jumps[c] > 0)))
+    return out
+
+
 def select_samples(f, segment, budget: int, keep=()) -> np.ndarray:
     """Indices of at most about `budget` samples of a curve with forces `f` (sorted; see
     the module docstring).

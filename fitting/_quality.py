@@ -35,6 +35,14 @@ Flags (:data:`FLAGS`; each with a message naming the numbers):
   result but a failure of the model to describe the start of contact. It is flagged, not
   bounded: a bound would only move the failure into the other parameters and report the
   offset "at a bound", while the flag names the misfit where it happens.
+- ``force_after_detachment``: after the model's last jump-off on the retract, where the
+  model is free, the measured force stays off it by more than 3σ on average, at 1 % or more
+  of the curve's χ² (:func:`force_after_detachment`): membrane tethers on a cell, a
+  detachment slower or later than the model's, or a retract baseline unlike the
+  approach's. The model cannot
+  describe these samples, and every sample counts in the objective
+  (:mod:`fitting._objective`), so they pull on the parameters; the message names the
+  offset, its duration and what to try.
 - ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
   gives the reason (the step limit, or a stop without progress) and what to try.
 - ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`),
@@ -79,6 +87,8 @@ from ._uncertainty import delta_method, derived_quantities
 
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
            "r_squared_rows", "segment_quality", "segment_quality_rows", "contact_outside",
+           "force_after_detachment", "AFTER_DETACHMENT_SAMPLES", "AFTER_DETACHMENT_SIGMA",
+           "AFTER_DETACHMENT_SHARE",
            "convergence", "check_contact_signal",
            "assess", "warning_kinds", "warn_summary", "tabor_entry", "TABOR_JKR_MIN"]
 
@@ -94,7 +104,7 @@ SIGNAL_RUN = 5
 
 #: The flags of a fit (see the module docstring).
 FLAGS = ("model_inadequate", "segment_not_described", "contact_outside_data",
-         "not_converged", "outside_jkr_limit")
+         "force_after_detachment", "not_converged", "outside_jkr_limit")
 
 #: Tabor's parameter below which a fit is flagged ``outside_jkr_limit``. Johnson and
 #: Greenwood's adhesion map (J. Colloid Interface Sci. 192, 326 (1997)) puts the JKR zone at
@@ -234,6 +244,82 @@ def contact_outside(indentation, force, model_force, noise, valid, segment, cont
     return out
 
 
+def force_after_detachment(ts, force, model_force, noise, weight, valid, segment,
+                           contact_radius) -> list[str]:
+    r"""Messages for curves whose measured force stays off the model's after the model's
+    last jump-off on the retract (arrays `(curves, samples)`; `contact_radius`: the model's
+    at the samples [m]).
+
+    The samples counted: the fitted retract samples after the last one where the model is
+    in contact (the model's force there is its free force, the force offset when fitted;
+    a curve whose model is still in contact at its last retract sample, or never on the
+    retract, has none; at least 3 kept samples are needed). With
+    $r_i = (F_i - F^\mathrm{model}_i)/\sigma_i$ and $w_i$ the measured samples a kept sample
+    stands for, a curve is named when those samples stand
+    for at least :data:`AFTER_DETACHMENT_SAMPLES` measured samples and their mean
+    $\bar r = \sum w r / \sum w$ exceeds :data:`AFTER_DETACHMENT_SIGMA` in magnitude (a
+    systematic offset: the noise alone gives $|\bar r| \approx 1/\sqrt{\sum w}$, which the
+    model, free there, cannot describe) and their $\sum w r^2$ is at least
+    :data:`AFTER_DETACHMENT_SHARE` of the curve's (an offset that matters to the fit, not
+    one lost beside a misfit elsewhere a thousand times larger). On a cell it is mostly
+    membrane tethers (a tensile plateau that falls in steps as they break); else a
+    detachment slower or later than the model's, or a retract baseline unlike the
+    approach's (viscous drag, drift).
+    """
+    out = []
+    ts, f, fm, sig, w = (np.asarray(x, dtype=float) for x in (ts, force, model_force,
+                                                             noise, weight))
+    valid = np.asarray(valid) > 0
+    a = np.nan_to_num(np.asarray(contact_radius, dtype=float))
+    retract = valid & (np.asarray(segment) == SEGMENTS.index("retract")) & (w > 0)
+    for c in range(f.shape[0]):
+        idx = np.flatnonzero(retract[c])
+        touching = idx[a[c, idx] > 0]
+        if idx.size == 0 or touching.size == 0 or touching[-1] == idx[-1]:
+            continue
+        after = idx[idx > touching[-1]]
+        n = float(np.sum(w[c, after]))
+        if after.size < 3 or n < AFTER_DETACHMENT_SAMPLES:
+            continue
+        r = (f[c, after] - fm[c, after]) / sig[c, after]
+        mean_r = float(np.sum(w[c, after] * r) / n)
+        if not abs(mean_r) > AFTER_DETACHMENT_SIGMA:
+            continue
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r_all = np.where(valid[c], (f[c] - fm[c]) / sig[c], 0.0)
+        share = float(np.sum(w[c, after] * r * r) / np.sum(w[c] * r_all * r_all))
+        if not share >= AFTER_DETACHMENT_SHARE:
+            continue
+        mean_f = float(np.sum(w[c, after] * (f[c, after] - fm[c, after])) / n)
+        where = f"curve {c}: " if f.shape[0] > 1 else ""
+        if mean_f < 0:
+            side = "below the model's free force (tensile)"
+            why = ("the tip is still pulled (membrane tethers, or a slower or later "
+                   "detachment than the model's) or the retract's baseline differs from the "
+                   "approach's (viscous drag, drift)")
+        else:
+            side = "above the model's free force (compressive)"
+            why = "the retract's baseline differs from the approach's (viscous drag, drift)"
+        out.append(
+            f"{where}after the model's jump-off (t = {float(ts[c, touching[-1]]):.4g} s) the "
+            f"measured force stays on average {abs(mean_f):.3g} N {side} ({mean_r:+.1f} sigma"
+            f" over the last {float(ts[c, after[-1]] - ts[c, touching[-1]]):.3g} s of the "
+            f"retract, {n:.0f} measured samples, {100 * share:.2g} % of the curve's chi2): "
+            f"{why}; the model cannot describe it, and these samples pull on every "
+            "parameter. A retract offset: retract_baseline="
+            "'separate' (command line --retract-baseline separate); to leave out the "
+            "samples away from the contact: indentation_range (--indentation-range LO:HI)")
+    return out
+
+
+#: :func:`force_after_detachment`: the least measured samples after the model's jump-off,
+#: the mean normalised residual over them and their least share of the curve's χ² for a
+#: curve to be named.
+AFTER_DETACHMENT_SAMPLES = 10
+AFTER_DETACHMENT_SIGMA = 3.0
+AFTER_DETACHMENT_SHARE = 0.01
+
+
 def convergence(converged: bool, steps: int, max_steps: int | None, *,
                 simpler: Sequence[str] = ()) -> dict:
     """``{"converged", "reason", "advice", "steps", "max_steps"}`` of the best start:
@@ -348,6 +434,12 @@ def assess(result, *, max_steps: int | None = None, evaluated=None,
                                float(result["contact_offset"]))
         if msgs:
             flags["contact_outside_data"] = "; ".join(msgs)
+    if result.model_contact_radius is not None:
+        msgs = force_after_detachment(data.ts, data.force, result.model_force, data.noise,
+                                      data.weight, data.valid, data.segment,
+                                      result.model_contact_radius)
+        if msgs:
+            flags["force_after_detachment"] = "; ".join(msgs)
     steps = result.start_steps
     best = int(np.argmin(np.where(np.isfinite(result.start_losses), result.start_losses,
                                   np.inf))) if np.size(result.start_losses) else 0

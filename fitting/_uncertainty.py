@@ -29,7 +29,8 @@ parameter at a bound (:meth:`fitting._parameters.Parameterisation.at_bound`) is 
 for the covariance and has no standard error (``status`` "at lower bound" / "at upper
 bound"). With fewer samples than free parameters nothing is determined. Typical cases:
 $\eta_1$ when the lift is much slower than the relaxation; $\Delta\gamma$ when no curve
-detaches and the contact front never recedes (the data then bound it only from below).
+jumps off (:func:`adhesion_note` says what the data bound then: from below when a retract
+ends still pulling, from above when none pulls at all).
 """
 
 from __future__ import annotations
@@ -75,16 +76,39 @@ class Uncertainty:
     warnings: list[str]
 
 
+def adhesion_note(retract_ends) -> str:
+    r"""What the data bound of $\Delta\gamma$ when no curve's retract jumps off (`retract_ends`:
+    one :func:`fitting._prepare.retract_end` per curve): a clause for the message of an
+    undetermined work of adhesion, empty when a curve jumps off (or none is known). A
+    retract still tensile at its end bounds it from below (a larger $\Delta\gamma$ holds
+    the contact longer); retracts that never pull bound it from above (a smaller one pulls
+    less than the noise); a gradual return bounds neither in the model's terms."""
+    ends = set(retract_ends)
+    if not ends or "jump-off" in ends:
+        return ""
+    if "held" in ends:
+        return ("; no curve jumps off and a retract ends still pulling, so the data bound it "
+                "only from below: lift until the contact jumps off, or fix it")
+    if ends == {"no adhesion"}:
+        return ("; no curve pulls on the retract (no force below -3 sigma), so the data "
+                "bound it only from above: the adhesion is below what the noise resolves; "
+                "fix it (e.g. 0) or leave it out of the conclusions")
+    return ("; no curve jumps off: the force returns gradually to the baseline after its "
+            "most tensile value (a slow peel, membrane tethers), which the model's sharp "
+            "jump-off does not describe")
+
+
 def gauss_newton(param, u, r, J, names, *, n_data: int, weights=None,
-                 no_detachment: bool = False, max_relative_error: float = 0.5,
+                 retract_ends=(), max_relative_error: float = 0.5,
                  max_condition: float = 1e10, warn: bool = True) -> Uncertainty:
     """Gauss–Newton covariance at internal coordinates `u` (see the module docstring).
 
     `param`: the `Parameterisation`; `r`, `J`: residuals and their Jacobian with respect
     to the internal coordinates of ``param.free`` (in that order); `n_data`: number of
     (measured) samples; `weights`: the weight $w_i$ of every residual (`None`: 1);
-    `no_detachment`: no curve detaches (named in the message about
-    $\\Delta\\gamma$).
+    `retract_ends`: how each curve's retract ends (:func:`fitting._prepare.retract_end`;
+    the message about an undetermined $\\Delta\\gamma$ says what the data bound when no
+    curve jumps off: :func:`adhesion_note`).
     """
     names = list(names)
     u = np.asarray(u, dtype=float)
@@ -172,9 +196,8 @@ def gauss_newton(param, u, r, J, names, *, n_data: int, weights=None,
         else:
             what = "relative standard error" if param.log[i] else "standard error / scale"
             why = f"{what} {rel:.3g} (> {limit:g})"
-        if names[i] == "work_of_adhesion" and no_detachment:
-            why += ("; no curve detaches, so the data bound it only from below: lift until "
-                    "the contact jumps off, or fix it")
+        if names[i] == "work_of_adhesion":
+            why += adhesion_note(retract_ends)
         messages.append(f"{names[i]} is not determined by the data: {why}")
     if warn:
         for m in messages:

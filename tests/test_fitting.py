@@ -7,6 +7,7 @@ every fit here uses 3 × 60 samples and 4 starts, so one compilation serves most
 import csv
 import dataclasses
 import json
+import re
 import types
 import warnings
 
@@ -621,6 +622,65 @@ def test_inadequate_model_is_flagged_everywhere(inadequate_fit, tmp_path):
     fig = plot_fit(res)
     texts = " ".join(t.get_text() for t in [*fig.texts, *(t for a in fig.axes for t in a.texts)])
     assert "MODEL INADEQUATE" in texts and "√χ²_red" in texts and "E_inf" in texts
+
+
+def test_force_after_detachment_named_against_constructed_residuals():
+    # one retract of 200 samples: the model in contact up to sample 79, free after it
+    from fitting._quality import force_after_detachment
+
+    rng = np.random.default_rng(0)
+    n, sig = 200, 1e-11
+    ts = np.linspace(0.0, 2.0, n)[None]
+    model = np.where(np.arange(n) < 80, -5e-10, 0.0)[None]
+    radius = np.where(np.arange(n) < 80, 1e-6, 0.0)[None]
+    seg = np.full((1, n), 2)  # SEGMENTS: approach, hold, retract
+    ones = np.ones((1, n))
+
+    def named(plateau, weight=ones, rad=radius, misfit=0.0):
+        f = model + sig * rng.standard_normal((1, n)) + np.where(np.arange(n) >= 80,
+                                                                 plateau, misfit)
+        return force_after_detachment(ts, f, model, sig * ones, weight, ones, seg, rad)
+
+    assert named(0.0) == []  # noise alone: the mean residual ~ 1/sqrt(120) sigma
+    assert named(-2 * sig) == []  # below 3 sigma on average
+    (msg,) = named(-5 * sig)  # a tether's plateau
+    assert "t = 0.794 s" in msg and "below the model's free force (tensile)" in msg
+    mean = float(re.search(r"on average (\S+) N below", msg).group(1))
+    assert mean == pytest.approx(5 * sig, rel=0.1)  # the plateau, within the noise's mean
+    assert "120 measured samples" in msg and "--retract-baseline separate" in msg
+    assert re.search(r"9\d % of the curve's chi2", msg)  # 120 * 25 of 80 + 120 * 26
+    # the same plateau beside a misfit of 100 sigma in contact: 0.4 % of chi2, not named
+    assert named(-5 * sig, misfit=100 * sig) == []
+    assert len(named(-5 * sig, misfit=10 * sig)) == 1  # 27 %
+    (msg,) = named(+5 * sig)
+    assert "above the model's free force (compressive)" in msg
+    # the same plateau standing for fewer than 10 measured samples: not named
+    few = np.where(np.arange(n) >= 80, 0.05, 1.0)[None]
+    assert named(-5 * sig, weight=few) == []
+    # two kept samples after a late jump-off, however many they stand for: not named
+    late = np.where(np.arange(n) < 198, 1e-6, 0.0)[None]
+    assert named(-50 * sig, weight=20 * ones, rad=late) == []
+    # the model still in contact at the last sample, or never on the retract: nothing after
+    assert named(-5 * sig, rad=np.full((1, n), 1e-6)) == []
+    assert named(-5 * sig, rad=np.zeros((1, n))) == []
+
+
+def test_tether_plateau_after_the_jump_off_is_flagged(noisy):
+    # the first curve's force held 10 sigma below the baseline after its measured jump-off
+    # (a membrane tether): flagged, naming that curve; the clean curves are not named
+    c0 = noisy[0]
+    sig = 0.01 * np.ptp(_curves()[0].force)
+    jump = int(np.argmax(np.diff(c0.force))) + 1  # the rise at the jump-off
+    assert jump < len(c0) - 15
+    tether = c0.replace(force=np.where(np.arange(len(c0)) >= jump, c0.force - 10 * sig,
+                                       c0.force))
+    res = _fit([tether, *noisy[1:]])
+    msg = res.flags["force_after_detachment"]
+    assert msg.startswith("curve 0: after the model's jump-off") and "curve 1" not in msg
+    assert "tensile" in msg and "force_after_detachment" in res.summary()
+    from jaxcontact_cli._plots import _FLAG_TEXT
+
+    assert "force_after_detachment" in _FLAG_TEXT
 
 
 def test_good_fit_is_ok_and_reports_its_quality(noisy_fit, tmp_path):

@@ -146,11 +146,42 @@ def test_no_detachment_is_not_a_confident_work_of_adhesion():
     assert not (np.isfinite(res.stderr[i]) and res.stderr[i] < 0.5 * res.values[i])
     msgs = [str(w.message) for w in caught if issubclass(w.category,
                                                          fitting.IdentifiabilityWarning)]
-    assert any(m.startswith("work_of_adhesion ") and "no curve detaches" in m
-               for m in msgs) or res.status[i].startswith("at "), msgs
+    assert any(m.startswith("work_of_adhesion ") and "ends still pulling" in m
+               and "only from below" in m for m in msgs) or res.status[i].startswith("at "), msgs
     for k in ("G0", "G1", "eta1"):
         assert res[k] == pytest.approx(TRUE[k], rel=0.01), k
         assert res.status[res.names.index(k)] == "ok"
+
+
+def test_how_a_retract_ends_and_what_it_bounds_of_the_work_of_adhesion():
+    # constructed retracts (sigma 1): what the data say of the work of adhesion when no
+    # curve jumps off, from the force alone
+    from fitting._prepare import retract_end
+    from fitting._uncertainty import adhesion_note
+
+    t = np.linspace(0.0, 1.0, 200)
+    dip = -40.0 * np.sin(np.pi * np.clip(t / 0.5, 0, 1))  # a tensile dip back to 0 at t 0.5
+    jump = np.where(t < 0.4, -40.0 * t / 0.4, 0.0)  # pulls harder, then lets go at once
+    held = -40.0 * t  # still pulling when the lift ends
+    free = 2.0 * np.sin(40 * t)  # never below -3 sigma
+    assert retract_end(jump, 1.0) == "jump-off"
+    assert retract_end(dip, 1.0) == "gradual"
+    assert retract_end(held, 1.0) == "held"
+    assert retract_end(free, 1.0) == "no adhesion"
+    assert retract_end(held, 1.0, jumps=True) == "jump-off"  # the preparation's finding
+    # the tail is the last tenth, weighted by the measured samples each kept one stands for
+    tail = np.r_[dip[:180], np.full(20, -5.0)]
+    assert retract_end(tail, 1.0) == "held"
+    assert retract_end(tail, 10.0) == "gradual"
+    ends = np.r_[dip[:180], np.full(10, -10.0), np.zeros(10)]  # the last tenth: -5 a sample
+    assert retract_end(ends, 1.0, jumps=False) == "held"
+    # ... but the free samples stand for 100 measured ones each: -0.1 a measured sample
+    w = np.r_[np.ones(190), np.full(10, 100.0)]
+    assert retract_end(ends, 1.0, w, jumps=False) == "gradual"
+    assert adhesion_note(["jump-off", "held"]) == "" and adhesion_note([]) == ""
+    assert "only from below" in adhesion_note(["held", "gradual", "no adhesion"])
+    assert "only from above" in adhesion_note(["no adhesion", "no adhesion"])
+    assert "returns gradually" in adhesion_note(["gradual", "no adhesion"])
 
 
 def test_nan_data_rejected(tmp_path, capsys):

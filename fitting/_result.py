@@ -66,12 +66,13 @@ class FitResult:
     samples, each once), `segments` (a :class:`fitting._quality.SegmentQuality` per
     fitted segment: $R^2$, reduced $\\chi^2$, largest residual in σ), `flags` (code →
     message: ``model_inadequate``, ``segment_not_described``, ``contact_outside_data``,
-    ``not_converged``; their messages are also in `warnings`), `convergence` (reason and
-    advice when the search did not converge), `stderr_scale` ($\\sqrt{\\chi^2_\\mathrm{red}}$,
-    the factor the Gauss–Newton errors carry: `stderr` / `stderr_scale` is the error the
-    noise alone would give), `derived` (Young's moduli $E = 3G$ beside every shear
-    modulus, the relaxed modulus $G_\\infty$ and $E_\\infty$, with standard errors from the
-    covariance: :func:`fitting._uncertainty.derived_quantities`; with adhesion, Tabor's
+    ``force_after_detachment``, ``not_converged``; their messages are also in
+    `warnings`), `convergence` (reason and advice when the search did not converge),
+    `stderr_scale` ($\\sqrt{\\chi^2_\\mathrm{red}}$, the factor the Gauss–Newton errors carry:
+    `stderr` / `stderr_scale` is the error the noise alone would give), `derived`
+    (Young's moduli $E = 3G$ beside every shear modulus, the relaxed modulus $G_\\infty$ and
+    $E_\\infty$, with standard errors from the covariance:
+    :func:`fitting._uncertainty.derived_quantities`; with adhesion, Tabor's
     parameter ``tabor_mu`` of the JKR limit, :func:`fitting._quality.tabor_entry`, flagged
     ``outside_jkr_limit`` below :data:`fitting._quality.TABOR_JKR_MIN`).
     """

@@ -306,9 +306,8 @@ def force_after_detachment(ts, force, model_force, noise, weight, valid, segment
             f" over the last {float(ts[c, after[-1]] - ts[c, touching[-1]]):.3g} s of the "
             f"retract, {n:.0f} measured samples, {100 * share:.2g} % of the curve's chi2): "
             f"{why}; the model cannot describe it, and these samples pull on every "
-            "parameter. A retract offset: retract_baseline="
-            "'separate' (command line --retract-baseline separate); to leave out the "
-            "samples away from the contact: indentation_range (--indentation-range LO:HI)")
+            "parameter. A retract offset is removed by retract_baseline='separate' "
+            "(command line --retract-baseline separate); tethers are not in the model")
     return out
 
 

@@ -306,8 +306,11 @@ def force_after_detachment(ts, force, model_force, noise, weight, valid, segment
             f" over the last {float(ts[c, after[-1]] - ts[c, touching[-1]]):.3g} s of the "
             f"retract, {n:.0f} measured samples, {100 * share:.2g} % of the curve's chi2): "
             f"{why}; the model cannot describe it, and these samples pull on every "
-            "parameter. A retract offset is removed by retract_baseline='separate' "
-            "(command line --retract-baseline separate); tethers are not in the model")
+            "parameter. A constant retract offset is removed by retract_baseline="
+            "'separate' (command line --retract-baseline separate), a drift in time by a "
+            "linear baseline through the approach and the retract's tail (baseline='linear', "
+            "retract_baseline=True; --baseline linear --retract-baseline include); tethers "
+            "are not in the model")
     return out
 
 

@@ -648,7 +648,7 @@ def test_force_after_detachment_named_against_constructed_residuals():
     mean = float(re.search(r"on average (\S+) N below", msg).group(1))
     assert mean == pytest.approx(5 * sig, rel=0.1)  # the plateau, within the noise's mean
     assert "120 measured samples" in msg and "--retract-baseline separate" in msg
-    assert "tethers" in msg
+    assert "tethers" in msg and "--baseline linear --retract-baseline include" in msg
     assert re.search(r"9\d % of the curve's chi2", msg)  # 120 * 25 of 80 + 120 * 26
     # the same plateau beside a misfit of 100 sigma in contact: 0.4 % of chi2, not named
     assert named(-5 * sig, misfit=100 * sig) == []

@@ -39,10 +39,9 @@ Flags (:data:`FLAGS`; each with a message naming the numbers):
   model is free, the measured force stays off it by more than 3σ on average, at 1 % or more
   of the curve's χ² (:func:`force_after_detachment`): membrane tethers on a cell, a
   detachment slower or later than the model's, or a retract baseline unlike the
-  approach's. The model cannot
-  describe these samples, and every sample counts in the objective
-  (:mod:`fitting._objective`), so they pull on the parameters; the message names the
-  offset, its duration and what to try.
+  approach's. The model cannot describe these samples, and every sample counts in the
+  objective (:mod:`fitting._objective`), so they pull on the parameters; the message names
+  the offset, its duration, its share of χ² and what to try.
 - ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
   gives the reason (the step limit, or a stop without progress) and what to try.
 - ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`),
@@ -113,6 +112,13 @@ FLAGS = ("model_inadequate", "segment_not_described", "contact_outside_data",
 #: Maugis–Dugdale one; DMT holds below $\lambda \approx 0.1$. 5 is that bound rounded up
 #: (and `docs/physics.md`'s "≳ 3–5" at its safe end).
 TABOR_JKR_MIN = 5.0
+
+#: :func:`force_after_detachment`: the least measured samples after the model's jump-off,
+#: the mean normalised residual over them and their least share of the curve's χ² for a
+#: curve to be named.
+AFTER_DETACHMENT_SAMPLES = 10
+AFTER_DETACHMENT_SIGMA = 3.0
+AFTER_DETACHMENT_SHARE = 0.01
 
 
 def r_squared(model, force, weight, mask) -> float:
@@ -312,14 +318,6 @@ def force_after_detachment(ts, force, model_force, noise, weight, valid, segment
             "retract_baseline=True; --baseline linear --retract-baseline include); tethers "
             "are not in the model")
     return out
-
-
-#: :func:`force_after_detachment`: the least measured samples after the model's jump-off,
-#: the mean normalised residual over them and their least share of the curve's χ² for a
-#: curve to be named.
-AFTER_DETACHMENT_SAMPLES = 10
-AFTER_DETACHMENT_SIGMA = 3.0
-AFTER_DETACHMENT_SHARE = 0.01
 
 
 def convergence(converged: bool, steps: int, max_steps: int | None, *,

@@ -87,8 +87,9 @@ def adhesion_note(retract_ends) -> str:
     if not ends or "jump-off" in ends:
         return ""
     if "held" in ends:
-        return ("; no curve jumps off and a retract ends still pulling, so the data bound it "
-                "only from below: lift until the contact jumps off, or fix it")
+        return ("; no curve jumps off and a retract ends still pulling (or its baseline lies "
+                "below the approach's), so the data bound it only from below: lift until the "
+                "contact jumps off, or fix it")
     if ends == {"no adhesion"}:
         return ("; no curve pulls on the retract (no force below -3 sigma), so the data "
                 "bound it only from above: the adhesion is below what the noise resolves; "

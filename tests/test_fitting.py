@@ -952,6 +952,14 @@ def test_tabor_parameter_reported_with_its_error_and_flagged_when_small(noisy_fi
     assert mu_small == pytest.approx(mu["value"] * (1e-12 / R) ** (1 / 3), rel=1e-9)
     assert mu_small < 5 and "outside_jkr_limit" in small.flags
     assert any("Tabor" in m and f"{mu_small:.3g}" in m for m in small.warnings)
+    # and on the figure, in red, as every flag (fitting._quality.FLAGS) is
+    from jaxcontact_cli import plot_fit
+    from jaxcontact_cli._plots import _FLAG_TEXT
+
+    assert set(_FLAG_TEXT) == set(fitting._quality.FLAGS)
+    fig = plot_fit(small)
+    texts = " ".join(t.get_text() for t in fig.texts)
+    assert "outside the JKR limit" in texts and "further warning" not in texts
     # ... but not where the work of adhesion is not determined (mu then not known to be small)
     status = ["not determined" if n == "work_of_adhesion" else s
               for n, s in zip(res.names, res.status, strict=True)]

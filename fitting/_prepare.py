@@ -269,11 +269,13 @@ def retract_end(f: np.ndarray, sigma: float, weight=None, *, jumps: bool | None 
     (never below $-3\sigma$), ``"held"`` (no jump-off, and the last tenth of the retract,
     at least 3 samples, still below $-3\sigma$ on average: the lift ended before the
     contact let go) or ``"gradual"`` (no jump-off, back to the baseline by the end: a slow
-    peel, tethers)."""
+    peel, tethers); ``"no retract"`` when `f` is empty."""
     f = np.asarray(f, dtype=float)
+    if f.size == 0:
+        return "no retract"
     if jumps if jumps is not None else _jump_index(f, sigma) is not None:
         return "jump-off"
-    if f.size == 0 or float(f.min()) > -3.0 * sigma:
+    if float(f.min()) > -3.0 * sigma:
         return "no adhesion"
     k = max(3, f.size // 10)
     w = np.ones(f.size) if weight is None else np.asarray(weight, dtype=float)

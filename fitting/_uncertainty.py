@@ -83,7 +83,7 @@ def adhesion_note(retract_ends) -> str:
     retract still tensile at its end bounds it from below (a larger $\Delta\gamma$ holds
     the contact longer); retracts that never pull bound it from above (a smaller one pulls
     less than the noise); a gradual return bounds neither in the model's terms."""
-    ends = set(retract_ends)
+    ends = set(retract_ends) - {"no retract"}  # a curve fitted without its retract
     if not ends or "jump-off" in ends:
         return ""
     if "held" in ends:

@@ -178,7 +178,10 @@ def test_how_a_retract_ends_and_what_it_bounds_of_the_work_of_adhesion():
     # ... but the free samples stand for 100 measured ones each: -0.1 a measured sample
     w = np.r_[np.ones(190), np.full(10, 100.0)]
     assert retract_end(ends, 1.0, w, jumps=False) == "gradual"
+    assert retract_end(np.array([]), 1.0) == "no retract"
     assert adhesion_note(["jump-off", "held"]) == "" and adhesion_note([]) == ""
+    assert adhesion_note(["no retract"]) == ""
+    assert "only from above" in adhesion_note(["no adhesion", "no retract"])
     assert "only from below" in adhesion_note(["held", "gradual", "no adhesion"])
     assert "only from above" in adhesion_note(["no adhesion", "no adhesion"])
     assert "returns gradually" in adhesion_note(["gradual", "no adhesion"])

@@ -242,6 +242,11 @@ def _median(x: np.ndarray) -> float:
     return float(s[m]) if s.size % 2 else float((s[m - 1] + s[m]) / 2.0)
 
 
+#: A retract force below ``-TENSILE_SIGMA`` noise levels is tensile: adhesion the data show
+#: (:func:`_jump_index`, :func:`retract_end`).
+TENSILE_SIGMA = 3.0
+
+
 def _jump_index(f: np.ndarray, sigma: float) -> int | None:
     """Index of the first sample after the measured jump-off in `f` (a retract), or None.
 
@@ -252,7 +257,7 @@ def _jump_index(f: np.ndarray, sigma: float) -> int | None:
     if f.size < 3:
         return None
     i_min = int(f.argmin())
-    if f[i_min] > -3.0 * sigma or i_min >= f.size - 1:
+    if f[i_min] > -TENSILE_SIGMA * sigma or i_min >= f.size - 1:
         return None
     rise = f[i_min + 1:] - f[i_min:-1]
     j = int(rise.argmax())
@@ -275,12 +280,12 @@ def retract_end(f: np.ndarray, sigma: float, weight=None, *, jumps: bool | None 
         return "no retract"
     if jumps if jumps is not None else _jump_index(f, sigma) is not None:
         return "jump-off"
-    if float(f.min()) > -3.0 * sigma:
+    if float(f.min()) > -TENSILE_SIGMA * sigma:
         return "no adhesion"
     k = max(3, f.size // 10)
     w = np.ones(f.size) if weight is None else np.asarray(weight, dtype=float)
     tail = float(np.sum(w[-k:] * f[-k:]) / max(float(np.sum(w[-k:])), 1e-300))
-    return "held" if tail < -3.0 * sigma else "gradual"
+    return "held" if tail < -TENSILE_SIGMA * sigma else "gradual"
 
 
 def retract_ends(data: CurveBatch) -> list[str]:

@@ -42,6 +42,7 @@ import math
 import numpy as np
 
 from ._caller import warn_at_caller
+from ._prepare import TENSILE_SIGMA
 
 __all__ = ["IdentifiabilityWarning", "ModelValidityWarning", "Uncertainty", "gauss_newton",
            "derived_quantities", "delta_method", "POISSON"]
@@ -91,9 +92,9 @@ def adhesion_note(retract_ends) -> str:
                 "below the approach's), so the data bound it only from below: lift until the "
                 "contact jumps off, or fix it")
     if ends == {"no adhesion"}:
-        return ("; no curve pulls on the retract (no force below -3 sigma), so the data "
-                "bound it only from above: the adhesion is below what the noise resolves; "
-                "fix it (e.g. 0) or leave it out of the conclusions")
+        return (f"; no curve pulls on the retract (no force below -{TENSILE_SIGMA:g} sigma), "
+                "so the data bound it only from above: the adhesion is below what the noise "
+                "resolves; fix it (e.g. 0) or leave it out of the conclusions")
     return ("; no curve jumps off: the force returns gradually to the baseline after its "
             "most tensile value (a slow peel, membrane tethers), which the model's sharp "
             "jump-off does not describe")

@@ -261,8 +261,8 @@ def force_after_detachment(ts, force, model_force, noise, weight, valid, segment
     a curve whose model is still in contact at its last retract sample, or never on the
     retract, has none; at least 3 kept samples are needed). With
     $r_i = (F_i - F^\mathrm{model}_i)/\sigma_i$ and $w_i$ the measured samples a kept sample
-    stands for, a curve is named when those samples stand
-    for at least :data:`AFTER_DETACHMENT_SAMPLES` measured samples and their mean
+    stands for, a curve is named when those samples stand for at least
+    :data:`AFTER_DETACHMENT_SAMPLES` measured samples and their mean
     $\bar r = \sum w r / \sum w$ exceeds :data:`AFTER_DETACHMENT_SIGMA` in magnitude (a
     systematic offset: the noise alone gives $|\bar r| \approx 1/\sqrt{\sum w}$, which the
     model, free there, cannot describe) and their $\sum w r^2$ is at least
@@ -287,7 +287,8 @@ def force_after_detachment(ts, force, model_force, noise, weight, valid, segment
         n = float(np.sum(w[c, after]))
         if after.size < 3 or n < AFTER_DETACHMENT_SAMPLES:
             continue
-        r = (f[c, after] - fm[c, after]) / sig[c, after]
+        off = f[c, after] - fm[c, after]
+        r = off / sig[c, after]
         mean_r = float(np.sum(w[c, after] * r) / n)
         if not abs(mean_r) > AFTER_DETACHMENT_SIGMA:
             continue
@@ -296,7 +297,7 @@ def force_after_detachment(ts, force, model_force, noise, weight, valid, segment
         share = float(np.sum(w[c, after] * r * r) / np.sum(w[c] * r_all * r_all))
         if not share >= AFTER_DETACHMENT_SHARE:
             continue
-        mean_f = float(np.sum(w[c, after] * (f[c, after] - fm[c, after])) / n)
+        mean_f = float(np.sum(w[c, after] * off) / n)
         where = f"curve {c}: " if f.shape[0] > 1 else ""
         if mean_f < 0:
             side = "below the model's free force (tensile)"

@@ -119,6 +119,10 @@ def main(argv=None):
     ap.add_argument("--streams", default="",
                     help="comma-separated values of BatchOptions.streams to time (default: "
                          "the library's default only)")
+    ap.add_argument("--search-cells", default="",
+                    help="comma-separated values of FitOptions.search_cells to time (history "
+                         "model; default: the library's default only); each row's chi2 is "
+                         "compared with the first value's")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--no-loop", action="store_true", help="leave out the loop of fit")
     ap.add_argument("--quick", action="store_true",
@@ -153,43 +157,51 @@ def main(argv=None):
                     f"{args.curves / t_loop:.2f} | | | | {steps:.0f} | 1 | - | - |")
         print(rows[-1], flush=True)
     streams = [int(k) for k in args.streams.split(",") if k] or [None]
+    grids = [int(k) for k in args.search_cells.split(",") if k] or [None]
     chi_first = {}
-    for chunk in (int(c) for c in args.chunks.split(",")):
-        for k in streams:
-            kw = dict(fit_kw, chunk=chunk, streams=k)
+    for chunk, k, grid in ((int(c), k, g) for c in args.chunks.split(",") for k in streams
+                           for g in grids):
+        kw = dict(fit_kw, chunk=chunk, streams=k, search_cells=grid)
+        t0 = time.perf_counter()
+        fitting.fit_each(curves, **kw)
+        cold = time.perf_counter() - t0
+        warm, stages = [], []
+        for _ in range(max(1, args.repeats)):
             t0 = time.perf_counter()
-            fitting.fit_each(curves, **kw)
-            cold = time.perf_counter() - t0
-            warm, stages = [], []
-            for _ in range(max(1, args.repeats)):
-                t0 = time.perf_counter()
-                res = fitting.fit_each(curves, **kw)
-                warm.append(time.perf_counter() - t0)
-                stages.append(res.timings)
-            w = statistics.median(warm)
-            ms = {s: 1e3 * statistics.median(t[s] for t in stages) / args.curves
-                  for s in ("prepare", "optimise", "finish")}
-            chi = np.array([r.chi2 for r in res.results])
-            same = ""
-            if chunk in chi_first:
-                same = f" (χ² of every curve equal to the first row's of this chunk: " \
-                       f"{bool(np.array_equal(chi, chi_first[chunk]))})"
-            chi_first.setdefault(chunk, chi)
-            steps = float(np.mean([np.sum(r.start_steps) for r in res.results]))
-            if ref is not None:
-                diff = f"{float(np.max(np.abs(res.values() / ref - 1))):.1e}"
-                lower = f"{int(np.sum(chi <= chi_ref * (1 + 1e-9)))}/{args.curves}"
-                ratio = f"{t_loop / w:.2f}"
-            else:
-                diff = lower = ratio = "-"
-            n_streams = fitting.BatchOptions(streams=k).streams_for(
-                -(-args.curves // chunk))
-            rows.append(f"| `fit_each` | {chunk} | {n_streams} | {cold:.1f} | {w:.2f} | "
-                        f"{args.curves / w:.2f} | {ms['prepare']:.1f} | "
-                        f"{ms['optimise']:.1f} | {ms['finish']:.1f} | {steps:.0f} | "
-                        f"{ratio} | {diff} | {lower} |")
-            print(rows[-1], flush=True)
-            print(f"  chi2 sum {float(np.sum(chi)):.12g}{same}", flush=True)
+            res = fitting.fit_each(curves, **kw)
+            warm.append(time.perf_counter() - t0)
+            stages.append(res.timings)
+        w = statistics.median(warm)
+        ms = {s: 1e3 * statistics.median(t[s] for t in stages) / args.curves
+              for s in ("prepare", "optimise", "finish")}
+        chi = np.array([r.chi2 for r in res.results])
+        same = ""
+        if chunk in chi_first:
+            first = chi_first[chunk]
+            same = f" (χ² of every curve equal to the first row's of this chunk: " \
+                   f"{bool(np.array_equal(chi, first))}; relative to it: " \
+                   f"{float(np.min(chi / first - 1)):+.2e} to " \
+                   f"{float(np.max(chi / first - 1)):+.2e}, " \
+                   f"{int(np.sum(chi <= first * (1 + 1e-9)))}/{args.curves} within +1e-9)"
+        chi_first.setdefault(chunk, chi)
+        steps = float(np.mean([np.sum(r.start_steps) + (0 if r.polish_steps is None else
+                                                         np.sum(r.polish_steps))
+                               for r in res.results]))
+        if ref is not None:
+            diff = f"{float(np.max(np.abs(res.values() / ref - 1))):.1e}"
+            lower = f"{int(np.sum(chi <= chi_ref * (1 + 1e-9)))}/{args.curves}"
+            ratio = f"{t_loop / w:.2f}"
+        else:
+            diff = lower = ratio = "-"
+        n_streams = fitting.BatchOptions(streams=k).streams_for(
+            -(-args.curves // chunk))
+        label = "`fit_each`" if grid is None else f"`fit_each`, search on {grid} cells"
+        rows.append(f"| {label} | {chunk} | {n_streams} | {cold:.1f} | {w:.2f} | "
+                    f"{args.curves / w:.2f} | {ms['prepare']:.1f} | "
+                    f"{ms['optimise']:.1f} | {ms['finish']:.1f} | {steps:.0f} | "
+                    f"{ratio} | {diff} | {lower} |")
+        print(rows[-1], flush=True)
+        print(f"  chi2 sum {float(np.sum(chi)):.12g}{same}", flush=True)
     head = [
         "# Force-map fits: `fitting.fit_each` against a loop of `fitting.fit`",
         "",

@@ -16,7 +16,10 @@ How :func:`fit` finds the optimum
    after a round without progress), the same compiled call, until the widest round no
    longer lowers $\chi^2$. The smallest $\chi^2$ wins;
    the pool also returns the Jacobian of every end point, so the best one's is reused
-   for the uncertainty.
+   for the uncertainty. With `search_cells` below `cells` the history model is searched
+   on that coarser foundation grid (a step costs less), and the best distinct end points
+   of that search are continued on `cells` (:func:`_polish`): the result, its $\chi^2$
+   and Jacobian are those of the model on `cells`.
 3. **Uncertainty** (:func:`fitting._uncertainty.gauss_newton`), statistics ($R^2$ over all
    samples and over the samples in contact, reduced $\chi^2$, AIC, BIC) and warnings
    about the model's validity (contact radius beyond $0.3R$ for a parabola; the relaxed
@@ -71,6 +74,7 @@ from ._curve import Curve
 from ._least_squares import RESULTS, Solution, run_pool, run_starts
 from ._objective import ModelAt, internal_jacobian, residuals, residuals_and_model
 from ._options import (
+    POLISHED_POINTS,
     SEARCH_BYTES_PER_RESIDUAL,
     SINGLE,
     BatchOptions,
@@ -451,7 +455,7 @@ def fit(curves: Curve | Sequence[Curve], *, options: FitOptions | None = None,
     - `options`: a :class:`fitting.FitOptions`, or its fields as keywords (`radius`,
       `profile`, `model`, `rheology`, `spring_constant`, `initial`, `fixed`, `bounds`,
       `contact_point`, `force_offset`, `n_starts`, `max_samples`, `indentation_range`,
-      `segments`, `cells`, `max_steps`, `optimiser`, `rtol`, `seed`, `local_rounds`,
+      `segments`, `cells`, `search_cells`, `max_steps`, `optimiser`, `rtol`, `seed`, `local_rounds`,
       `progress`; meanings, units and defaults there). A keyword given beside `options`
       must agree with it.
 
@@ -852,13 +856,32 @@ def _pad(problems: dict) -> None:
         problems[g] = dataclasses.replace(pb, data=data, zs=zs)
 
 
+@dataclasses.dataclass
+class _Searched:
+    """A problem's search (host solutions, :class:`Solution`, one lane per start): `final`, the
+    starts on the fit's own grid, whose best is the result (the search itself, or with a
+    coarser search grid the polished end points, :func:`_polish`), and `search`, the
+    search on the coarser grid (``FitOptions.search_cells``; `None`: it ran on the fit's
+    grid, `final`)."""
+
+    final: Solution
+    search: Solution | None = None
+
+    @property
+    def starts(self) -> Solution:
+        """The global search's and local rounds' starts (on the search's grid)."""
+        return self.final if self.search is None else self.search
+
+
 def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
                   batch: BatchOptions, *, lanes: int, show=None,
-                  traced=None, searched=None) -> list[Solution]:
+                  traced=None, searched=None) -> list[_Searched]:
     """The global search and the local rounds of equally shaped `problems` in one compiled
     pool (:func:`solve_batch`), padded to `size` problems (the last one repeated; its
-    copies are never run, and dropped): the host :class:`Solution` of every start of each
-    problem.
+    copies are never run, and dropped), on the search's grid
+    (:meth:`fitting.FitOptions.search_spec`); where that is coarser than the fit's own, its
+    best end points continued on the fit's grid (:func:`_polish`). Returns a
+    :class:`_Searched` per problem.
     `traced()`: called once the pool's program is traced (before its first call);
     `searched()`: once its first call has returned (the program is compiled)."""
     fill = [problems[j] for j in padded_indices(len(problems), size)]
@@ -867,7 +890,7 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
         fill = _screened(fill, options)
     params = _stack([pb.param for pb in fill], n_z)
     datas = _stack([pb.data for pb in fill], n_z)
-    spec = fill[0].spec
+    spec = options.search_spec(fill[0].spec)
 
     def run(starts, limits):
         nonlocal traced, searched  # called on the first call only
@@ -894,7 +917,55 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
                          local_rounds=options.local_rounds, seed=options.seed,
                          max_steps=options.max_steps, explore_steps=options.explore_steps,
                          limits=limits, show=show)
-    return outs[:n]
+    if spec == fill[0].spec:
+        return [_Searched(final=o) for o in outs[:n]]
+    polished = _polish(fill, outs, n, options, batch, lanes=lanes, show=show)
+    return [_Searched(final=p, search=o) for p, o in zip(polished, outs[:n], strict=True)]
+
+
+def distinct_best(chi2, k: int, *, rtol: float = 1e-7) -> np.ndarray:
+    r"""The indices of the `k` best distinct end points by $\chi^2$ (finite only; two end
+    points whose $\chi^2$ agree within a relative `rtol` count as one optimum), best first;
+    fewer where there are fewer."""
+    chi2 = np.asarray(chi2, dtype=float)
+    picked: list[int] = []
+    for i in np.argsort(np.where(np.isfinite(chi2), chi2, np.inf), kind="stable"):
+        if not np.isfinite(chi2[i]) or len(picked) == k:
+            break
+        if all(abs(chi2[i] - chi2[j]) > rtol * abs(chi2[j]) for j in picked):
+            picked.append(int(i))
+    return np.asarray(picked, dtype=int)
+
+
+def _polish(fill: list[_Problem], outs: list[Solution], n: int, options: FitOptions,
+            batch: BatchOptions, *, lanes: int, show=None) -> list[Solution]:
+    """The best :data:`fitting._options.POLISHED_POINTS` distinct end points of each of
+    the first `n` problems' searches (`outs`, on the coarser search grid) continued on the
+    fit's own grid (``fill[0].spec``) with `max_steps`, in one compiled pool: the host
+    :class:`Solution` of those starts per problem (a point not there, fewer distinct
+    optima or a padding problem, is not run: limit 0, and dropped)."""
+    k = POLISHED_POINTS
+    spec = fill[0].spec
+    # a search without a finite end point still has its first start continued
+    picks = [(distinct_best(o.chi2, k) if np.isfinite(o.chi2).any() else np.zeros(1, int))
+             if j < n else np.zeros(0, int) for j, o in enumerate(outs)]
+    starts = np.concatenate([
+        np.asarray(o.z)[np.concatenate([p, np.full(k - len(p), p[0] if len(p) else 0)])]
+        for o, p in zip(outs, picks, strict=True)])
+    limits = np.concatenate([np.where(np.arange(k) < len(p), options.max_steps, 0)
+                             for p in picks]).astype(np.int32)
+    out = jax.device_get(solve_batch(
+        spec, _stack([pb.param for pb in fill], k), _stack([pb.data for pb in fill], k),
+        starts, limits=limits, workers=min(lanes, k * len(fill)), rtol=options.rtol,
+        max_steps=options.max_steps, optimiser=options.optimiser, devices=batch.devices,
+        keep_jacobian=True))
+    polished = [out.take(slice(j * k, j * k + max(len(picks[j]), 1))) for j in range(n)]
+    if show is not None:
+        for o, p in zip(polished, picks, strict=True):
+            show(f"continued the best {len(p)} end point(s) of the search on {spec.cells} "
+                 f"cells (searched on {options.search_cells}): chi2 "
+                 f"{', '.join(f'{c:.8g}' for c in np.asarray(o.chi2))}")
+    return polished
 
 
 #: Screened points evaluated at once per problem (bounds the memory of a screen like that
@@ -1007,14 +1078,14 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
     ok = []
     for j, (pb, o) in enumerate(zip(problems, outs, strict=True)):
         try:
-            out[j] = {"best": _best_point(pb, o)}
+            out[j] = {"best": _best_point(pb, o.final)}
             ok.append(j)
         except failed as exc:
             out[j] = exc
     if not ok:
         return out
     # the model at each best start: carried by the search's solver, else evaluated here
-    carried = all(outs[j].model is not None for j in ok)
+    carried = all(outs[j].final.model is not None for j in ok)
     try:
         args, kw = _chunk_inputs([problems[j] for j in ok], [out[j]["best"][1] for j in ok],
                                  size, options, model=not carried)
@@ -1029,7 +1100,7 @@ def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
         return out
     profile = options.probe
     if carried:
-        models = [ModelAt(*(np.asarray(x[out[j]["best"][0]]) for x in outs[j].model))
+        models = [ModelAt(*(np.asarray(x[out[j]["best"][0]]) for x in outs[j].final.model))
                   for j in ok]
     else:
         models = [ModelAt(*(np.asarray(x[i]) for x in model)) for i in range(len(ok))]
@@ -1081,19 +1152,25 @@ def _chunk_quality(datas: list, models: list[ModelAt]) -> list[dict]:
              "in_contact": in_contact[i]} for i in range(rows)]
 
 
-def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show, warn,
+def _finish(pb: _Problem, out: _Searched, options: FitOptions, pre: dict, *, show, warn,
             timings, t_start) -> FitResult:
-    """The :class:`FitResult` of problem `pb` from the search's :class:`Solution` `out`
-    (every start; its `r`, `J` if kept, J with respect to z) and what
+    """The :class:`FitResult` of problem `pb` from its search `out` (:class:`_Searched`:
+    every start; the `r`, `J` of its final starts if kept, J with respect to z) and what
     :func:`_finish_chunk` computed for its chunk (`pre`)."""
     spec, param, data, names, info = pb.spec, pb.param, pb.data, pb.names, pb.info
-    chi2_all, steps_all = np.asarray(out.chi2), np.asarray(out.steps)
-    ok_all = np.asarray(out.converged)
+    final, starts = out.final, out.starts
+    chi2_all, steps_all = np.asarray(final.chi2), np.asarray(final.steps)
+    ok_all = np.asarray(final.converged)
     best, u, r, J = pre["best"]
-    order = np.argsort(np.where(np.isfinite(chi2_all), chi2_all, np.inf))
-    show(f"search: chi2 of the best starts {', '.join(f'{chi2_all[i]:.6g}' for i in order[:4])}"
-         f"; {RESULTS.describe(out.result[best])}, {int(steps_all[best])} steps "
-         f"({len(chi2_all)} starts, {int(np.sum(steps_all))} steps in all)")
+    searched = np.asarray(starts.chi2)
+    order = np.argsort(np.where(np.isfinite(searched), searched, np.inf))
+    grid = "" if out.search is None else f" on {options.search_cells} cells"
+    show(f"search{grid}: chi2 of the best starts "
+         f"{', '.join(f'{searched[i]:.6g}' for i in order[:4])} ({len(searched)} starts, "
+         f"{int(np.sum(np.asarray(starts.steps)))} steps in all)")
+    show(f"{'best' if out.search is None else f'continued on {spec.cells} cells'}: chi2 "
+         f"{chi2_all[best]:.8g}; {RESULTS.describe(final.result[best])}, "
+         f"{int(steps_all[best])} steps")
     model_force, fitted_force, radius_model = pre["model"]
 
     t0 = time.perf_counter()
@@ -1126,17 +1203,22 @@ def _finish(pb: _Problem, out: Solution, options: FitOptions, pre: dict, *, show
         reduced_chi2=unc.reduced_chi2, n_data=n, n_free=k,
         r_squared=quality["r_squared"], r_squared_contact=quality["r_squared_contact"],
         aic=ll + 2 * k, bic=ll + k * math.log(n), converged=bool(ok_all[best]),
-        start_losses=chi2_all,
+        start_losses=searched,
         spec=spec, data=data, curves=curves, profile=profile, radius=pre["radius"],
         model_at=(u, spec, param, data), model_force=model_force,
         model_contact_radius=radius_model, fitted_force=fitted_force,
         in_contact=quality["in_contact"],
-        parameterisation=param, optimiser=options.optimiser, start_steps=steps_all,
+        parameterisation=param, optimiser=options.optimiser,
+        start_steps=np.asarray(starts.steps),
+        polish_losses=None if out.search is None else chi2_all,
+        polish_steps=None if out.search is None else steps_all,
         warnings=msgs, timings=timings,
         search={"n_starts": options.n_starts, "screen": options.screen,
                 "local_rounds": options.local_rounds, "max_steps": options.max_steps,
                 "explore_steps": min(options.explore_steps, options.max_steps),
-                "optimiser": options.optimiser, "rtol": options.rtol, "seed": options.seed},
+                "optimiser": options.optimiser, "rtol": options.rtol, "seed": options.seed,
+                **({"cells": spec.cells, "search_cells": options.search_spec(spec).cells}
+                   if spec.model == "history" else {})},
     )
     # quality per segment, flags, convergence, derived quantities
     flagged = assess(result, max_steps=options.max_steps, evaluated=pre["evaluated"],

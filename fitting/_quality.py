@@ -441,9 +441,11 @@ def assess(result, *, max_steps: int | None = None, evaluated=None,
                                       result.model_contact_radius)
         if msgs:
             flags["force_after_detachment"] = "; ".join(msgs)
-    steps = result.start_steps
-    best = int(np.argmin(np.where(np.isfinite(result.start_losses), result.start_losses,
-                                  np.inf))) if np.size(result.start_losses) else 0
+    # the steps of the start the result is (the polished one where the search ran coarser)
+    losses, steps = ((result.start_losses, result.start_steps) if result.polish_losses is None
+                     else (result.polish_losses, result.polish_steps))
+    best = int(np.argmin(np.where(np.isfinite(losses), losses, np.inf))) \
+        if np.size(losses) else 0
     result.convergence = convergence(
         result.converged, int(np.asarray(steps)[best]) if steps is not None else 0,
         max_steps, simpler=rheology_kind(result.spec).nested(result.spec.arms))

@@ -18,8 +18,11 @@ samples each kept sample stands for, ``r_squared_weighting`` says so —
 reduced $\chi^2$ and the largest residual in σ); the model (``model``, ``rheology``,
 ``radius_m``, ``profile`` and ``profile_parameters``, ``loading``, ``contact_point`` and
 ``force_offset`` choices, ``model_selection`` for ``rheology="auto"``); the search
-(``start_losses``; ``search``: its settings, ``n_starts``, ``screen``, ``local_rounds``,
-``max_steps``, ``explore_steps``, ``optimiser``, ``rtol``, ``seed``); ``correlation``;
+(``start_losses``, on the search's grid; ``polish_losses``, the search's best end points
+continued on the model's own grid when the history model was searched on a coarser one,
+else null; ``search``: its settings, ``n_starts``, ``screen``, ``local_rounds``,
+``max_steps``, ``explore_steps``, ``optimiser``, ``rtol``, ``seed``, and for the history
+model ``cells``, ``search_cells``); ``correlation``;
 ``warnings``; ``timings_s``; ``inputs`` (each curve's
 source, segments, samples, duration, spring constant, and its detected contact point and
 baseline when a loader found them).
@@ -121,6 +124,8 @@ def result_table(result) -> dict:
                           "chosen": m.chosen} for m in result.model_selection],
         optimiser=result.optimiser,
         start_losses=[_num(x) for x in np.asarray(result.start_losses)],
+        polish_losses=None if result.polish_losses is None
+        else [_num(x) for x in np.asarray(result.polish_losses)],
         correlation={"names": list(result.columns),
                      "matrix": [[_num(x) for x in row] for row in result.correlation]},
         warnings=list(result.warnings),

@@ -45,11 +45,15 @@ class FitResult:
     measured jump-off or $|F| > 3\\sigma$, or a model contact radius > 0), `aic`, `bic` (see
     :class:`ModelChoice`), `converged`.
 
-    **Search:** `start_losses` (final $\\chi^2$ of every start of the global search),
-    `start_steps` (iterations of every start), `optimiser`, `model_selection` (the
-    candidates of ``rheology="auto"``, else empty), `search` (the search's settings:
-    `n_starts`, `screen`, `local_rounds`, `max_steps`, `explore_steps`, `optimiser`, `rtol`,
-    `seed`; with the data they give the same optimum again).
+    **Search:** `start_losses` (final $\\chi^2$ of every start of the global search and
+    the local rounds, on the search's grid), `start_steps` (iterations of every start),
+    `polish_losses`, `polish_steps` (the history model searched on a coarser grid than
+    its own, ``search_cells < cells``: $\\chi^2$ and iterations of the search's best
+    distinct end points continued on `cells`, whose best is the result; else `None`),
+    `optimiser`, `model_selection` (the candidates of ``rheology="auto"``, else empty),
+    `search` (the search's settings: `n_starts`, `screen`, `local_rounds`, `max_steps`,
+    `explore_steps`, `optimiser`, `rtol`, `seed`, and for the history model `cells` and
+    `search_cells`; with the data they give the same optimum again).
 
     **Data and model:** `spec`, `data` (the `CurveBatch` fitted), `curves`, `profile`,
     `radius` (of a parabola or sphere), `model_force` (the model's force at the sample
@@ -109,6 +113,8 @@ class FitResult:
     parameterisation: object = None
     optimiser: str = "lm"
     start_steps: np.ndarray | None = None
+    polish_losses: np.ndarray | None = None
+    polish_steps: np.ndarray | None = None
     model_selection: list[ModelChoice] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     timings: dict = field(default_factory=dict)

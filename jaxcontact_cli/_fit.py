@@ -167,6 +167,11 @@ def add_fit_arguments(parser):
                              "(AFM Workshop .csv)")
     parser.add_argument("--cells", type=int, default=32, metavar="N",
                         help="foundation grid cells of the history model (default 32)")
+    parser.add_argument("--search-cells", type=int, default=None, metavar="N",
+                        help="foundation grid cells of the history model's search, at most "
+                             "--cells (default: --cells); below it, the search's best end "
+                             "points are continued on --cells (a second compilation: for "
+                             "maps of many curves, e.g. 16)")
     parser.add_argument("--units", default=None, metavar="ROLE=UNIT,...",
                         help="units of CSV columns without units, e.g. "
                              "'displacement=nm,force=nN'")
@@ -331,6 +336,9 @@ def _check(args):
         raise UsageError(f"argument --streams: must be an integer >= 1; got {args.streams}")
     if args.cells < 2:
         raise UsageError(f"argument --cells: must be an integer >= 2; got {args.cells}")
+    if args.search_cells is not None and not 2 <= args.search_cells <= args.cells:
+        raise UsageError(f"argument --search-cells: must be an integer in [2, --cells = "
+                         f"{args.cells}]; got {args.search_cells}")
     if args.screen is not None and args.screen < 0:
         raise UsageError(f"argument --screen: must be an integer >= 0; got {args.screen}")
     if args.screen and args.starts is not None and args.screen < args.starts:
@@ -424,6 +432,8 @@ def run(args) -> int:
         options["n_starts"] = args.starts
     if args.max_steps is not None:
         options["max_steps"] = args.max_steps
+    if args.search_cells is not None:
+        options["search_cells"] = args.search_cells
     if args.screen is not None:
         options["screen"] = args.screen
     if args.explore_steps is not None:

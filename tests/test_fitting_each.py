@@ -668,3 +668,17 @@ def test_force_map_shared_by_two_processes_through_the_command_line(tmp_path):
         assert np.all(np.isfinite(err)), name
         assert np.all(np.abs(a[name].values - b[name].values) <= 2e-2 * err), name
     assert a["grid_x"].values.tolist() == b["grid_x"].values.tolist()
+
+
+def test_distinct_best_end_points():
+    """The end points continued after a coarser search (`fitting._optimise.distinct_best`):
+    the best first, one per optimum (chi2 equal within the relative tolerance), finite only,
+    at most k."""
+    from fitting._optimise import distinct_best
+
+    chi2 = np.array([5.0, 1.0, 1.0 + 1e-9, np.nan, 3.0, 1.0 + 1e-3, np.inf, 3.0 * (1 + 1e-8)])
+    assert distinct_best(chi2, 3).tolist() == [1, 5, 4]
+    assert distinct_best(chi2, 10).tolist() == [1, 5, 4, 0]
+    assert distinct_best(chi2, 1).tolist() == [1]
+    assert distinct_best(chi2, 3, rtol=1e-12).tolist() == [1, 2, 5]
+    assert distinct_best(np.array([np.nan, np.inf]), 3).tolist() == []

@@ -10,10 +10,12 @@ pads every subsampled curve to the same length), so few compilations serve the f
 """
 
 import csv
+import dataclasses
 import json
 import pathlib
 import warnings
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from test_fitting import D0, TRUE, R
@@ -21,6 +23,7 @@ from test_fitting_models import _read_outputs, _write_csv
 
 import fitting
 import jaxcontact as jc
+from fitting._objective import residuals
 from jaxcontact_cli import main
 
 DATA = pathlib.Path(__file__).parent / "data"
@@ -83,6 +86,38 @@ def test_contact_offset_recovered(subsampled_fit):
         assert res.status[i] == "ok", (k, res.status[i])
         assert abs(res.values[i] - v) < 3.5 * res.stderr[i], (k, res.values[i], res.stderr[i])
     assert 0.6 < res.reduced_chi2 < 1.6
+
+
+def test_a_coarser_search_grid_ends_on_the_fit_grid(shifted, subsampled_fit):
+    """``search_cells`` below ``cells``: the search on 8 cells, its best distinct end points
+    continued on the fit's 32. The result is a point of the 32-cell model (its chi2 is the
+    32-cell objective at its values, evaluated anew; the 8-cell objective there differs),
+    and it ends where the search on the 32 cells alone ends (the fixture: chi2 within
+    1e-6, every parameter within a tenth of its standard error)."""
+    coarse = _fit(shifted, contact_point="fit", max_samples=BUDGET, search_cells=8)
+    one = subsampled_fit
+    assert one.polish_losses is None and one.polish_steps is None
+    assert one.search["cells"] == one.search["search_cells"] == 32
+    assert coarse.search["cells"] == 32 and coarse.search["search_cells"] == 8
+    assert coarse.spec.cells == 32
+    assert 1 <= len(coarse.polish_losses) <= fitting._options.POLISHED_POINTS
+    assert len(coarse.polish_steps) == len(coarse.polish_losses)
+    assert coarse.chi2 == pytest.approx(np.min(coarse.polish_losses), rel=1e-10)
+
+    def chi2(cells):
+        spec = dataclasses.replace(coarse.spec, cells=cells)
+        r = residuals(jnp.asarray(coarse.values), coarse.data, spec)
+        return float(jnp.sum(r ** 2))
+
+    assert chi2(32) == pytest.approx(coarse.chi2, rel=1e-9)
+    assert abs(chi2(8) / chi2(32) - 1) > 1e-5  # the grids' objectives differ
+    assert coarse.chi2 == pytest.approx(one.chi2, rel=1e-6)
+    for i, name in enumerate(one.names):
+        assert abs(coarse.values[i] - one.values[i]) < 0.1 * one.stderr[i], name
+    # the report says which grid each loss is on
+    table = fitting._report.result_table(coarse)
+    assert table["search"]["search_cells"] == 8
+    assert table["polish_losses"] == pytest.approx(list(coarse.polish_losses))
 
 
 @pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)

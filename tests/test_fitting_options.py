@@ -28,6 +28,9 @@ R = 12e-6
     (dict(seed=-3), "seed must be an integer >= 0"),
     (dict(max_samples=3), "max_samples must be an integer >= 4; got 3"),
     (dict(cells=1), "cells must be an integer >= 2"),
+    (dict(search_cells=1), "search_cells must be an integer >= 2; got 1"),
+    (dict(search_cells=33), "search_cells must be an integer in [2, cells = 32]; got 33"),
+    (dict(cells=8, search_cells=16), "search_cells must be an integer in [2, cells = 8]"),
     (dict(model="creep"), "model must be 'relaxed' or 'history'"),
     (dict(rheology="maxwell"), "rheology must be 'standard', 'prony:N'"),
     (dict(rheology="prony:9"), "needs an integer N in [1, 8]"),
@@ -90,6 +93,15 @@ def test_options_are_frozen_keyword_only_and_normalised():
     assert fitting.FitOptions(radius=R, rheology="elastic").chain() == ["elastic"]
     assert isinstance(o.replace(optimiser="lbfgs").solver(), fitting.LBFGS)
     assert o.solver().max_steps == 200 and o.solver().rtol == 1e-8
+    # the search's grid: the fit's own by default; a coarser one for the history model only
+    assert o.search_cells == o.cells == 32
+    spec = fitting.make_spec("history", "standard", cells=32)
+    assert o.search_spec(spec) is spec
+    coarse = o.replace(search_cells=16).search_spec(spec)
+    assert coarse.cells == 16 and coarse.model == "history"
+    assert dataclasses.replace(coarse, cells=32) == spec
+    relaxed = fitting.make_spec("relaxed", "standard")
+    assert o.replace(search_cells=16).search_spec(relaxed) is relaxed
 
 
 def test_keywords_and_options_are_one_way_in():

@@ -96,6 +96,16 @@ class FitEachResult:
         return np.array([r.stderr if r is not None else np.full(len(self.names), np.nan)
                          for r in self.results], dtype=float)
 
+    def surface_heights(self) -> tuple[np.ndarray, np.ndarray]:
+        """The sample's surface height at each curve's contact [m] and its standard error,
+        each of shape `(curves,)` (:meth:`fitting.FitResult.surface_height`: the map's
+        topography in the instrument's frame; nan for a failed curve and for files whose
+        heights are relative to each curve's start)."""
+        pairs = [r.surface_height() if r is not None else (np.nan, np.nan)
+                 for r in self.results]
+        return (np.array([p[0] for p in pairs], dtype=float),
+                np.array([p[1] for p in pairs], dtype=float))
+
     def to_dataset(self):
         """An :class:`xarray.Dataset` with dimension ``curve`` (see the module docstring).
 

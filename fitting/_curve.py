@@ -350,6 +350,29 @@ class Curve:
         idx = _segment_indices(self, which)
         return np.isin(self.segment, idx)
 
+    def surface_height(self, contact_offset: float = 0.0) -> float:
+        r"""The height of the sample's surface where this curve touched it [m], in the
+        instrument's frame of heights (the file's: decreasing toward the sample, so a
+        taller sample has a larger surface height; a map of it is the sample's
+        topography):
+
+        $$z_s = h_0 - (p_c - \delta),$$
+
+        $h_0$ the first sample's height (``metadata["height at start"]``, set by
+        :func:`fitting.load_afm` for files whose heights are the instrument's frame),
+        $p_c$ the contact's tip position (``contact.tip_position``, relative to the first
+        sample's base position) and $\delta$ the fitted `contact_offset` [m] (the model's
+        indentation is the data's plus $\delta$, so the contact lies $\delta$ before
+        $p_c$; 0 for a detected contact point used as it is). NaN when the curve has no
+        contact point (not preprocessed, or ``method="none"``) or no ``height at start``
+        (heights relative to each curve's start: Bruker force volumes, Optics11 exports,
+        CSV files)."""
+        h0 = self.metadata.get("height at start")
+        c = self.contact
+        if h0 is None or c is None or c.method == "none":
+            return math.nan
+        return float(h0) - (float(c.tip_position) - float(contact_offset))
+
     def replace(self, **changes) -> Curve:
         """A copy with some fields replaced (validated again)."""
         return dataclasses.replace(self, **changes)

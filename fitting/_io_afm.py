@@ -75,7 +75,12 @@ def load_afm(
 
     * Height: ``height (measured)`` (closed-loop sensor) when present, else
       ``height (piezo)``; choose with ``height_column``. Base displacement toward the
-      sample ``u = h[0] − h`` (AFM heights decrease toward the sample).
+      sample ``u = h[0] − h`` (AFM heights decrease toward the sample). Where the file's
+      heights are the instrument's own frame, one for every curve of a map (JPK and
+      Asylum files: :data:`ABSOLUTE_HEIGHT_FORMATS`), ``metadata["height at start"]`` is
+      ``h[0]`` [m], so that :meth:`fitting.Curve.surface_height` gives the sample's
+      surface at the curve's contact point (a map's topography); other files (Bruker
+      force volumes, whose ramps each start at 0; Optics11 exports) have none.
     * Time: the file's ``time`` column, else ``sample index / rate approach`` (Asylum
       ``.ibw`` files carry no time column; their sample interval is 1/``NumPtsPerSec``),
       else ``sample index / sample_rate`` with the ``sample_rate`` [Hz] given (AFM
@@ -207,6 +212,13 @@ def load_afm(
     return curves
 
 
+#: afmformats' format names (their beginnings) whose heights are the instrument's own
+#: frame, one for every curve of a map: JPK's closed-loop height sensor or piezo, Asylum's
+#: Z sensor (checked on the files of `tests/data`, `benchmarks/data`: the first sample's
+#: height differs between a map's points, tens of micrometres on JPK maps). JPK files read
+#: by :func:`fitting._io_jpk.read_jpk` count too.
+ABSOLUTE_HEIGHT_FORMATS = ("JPK Instruments", "Asylum Research")
+
 _READ_ERRORS = (KeyError, IndexError, OSError, EOFError, NotImplementedError,
                 zipfile.BadZipFile, zlib.error)
 
@@ -331,6 +343,11 @@ def _afm_curve(ds, path, k_arg, height_column, baseline, contact_point, limits, 
         names = DEFAULT_SEGMENT_NAMES[len(present)]
 
     meta["height column"] = height_column
+    if reader == "jaxcontact-jpk" or str(meta.get("format", "")).startswith(
+            ABSOLUTE_HEIGHT_FORMATS):
+        # the first sample's height [m] in the instrument's frame (decreasing toward the
+        # sample), where the displacement starts (`Curve.surface_height`)
+        meta["height at start"] = float(h[0])
     meta["spring constant (file)"] = k_file
     raw = Curve(
         time=time, displacement=h[0] - h, force=force, segment=seg, segment_names=names,

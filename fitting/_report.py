@@ -25,7 +25,8 @@ else null; ``search``: its settings, ``n_starts``, ``screen``, ``local_rounds``,
 model ``cells``, ``search_cells``); ``correlation``;
 ``warnings``; ``timings_s``; ``inputs`` (each curve's
 source, segments, samples, duration, spring constant, and its detected contact point and
-baseline when a loader found them).
+baseline when a loader found them, with the sample's surface height there,
+``surface_height_m`` and its standard error: :meth:`fitting.FitResult.surface_height`).
 
 ``parameters.csv``: one row per parameter, then one per derived quantity (``derived``
 True: Young's moduli E = 3G, G_inf, E_inf, tau, Tabor's mu with errors from the covariance):
@@ -51,9 +52,12 @@ then per parameter ``<name>_<unit>``, ``..._stderr``, ``..._status``, then
 ``convergence``, ``r_squared_unweighted``, per segment ``r_squared_<segment>``,
 ``reduced_chi2_<segment>``, ``max_residual_<segment>``, the derived quantities with their
 standard errors: ``E0_Pa``, ``E0_Pa_stderr``, ..., ``G_inf_Pa``, ``E_inf_Pa``,
-``tabor_mu_1``) and the
-settings of each curve (``profile``, ``radius_m``, ``contact_point``, ``contact_method``,
-``baseline``, ``baseline_region``, ``noise_N``); empty cells where a value is missing) and
+``tabor_mu_1``), the settings of each curve (``profile``, ``radius_m``,
+``contact_point``, ``contact_method``, ``baseline``, ``baseline_region``, ``noise_N``) and
+the sample's surface height at the contact (``surface_height_m``,
+``surface_height_m_stderr``: :meth:`fitting.FitResult.surface_height`, the map's
+topography in the instrument's frame; empty for files whose heights are relative to each
+curve's start); empty cells where a value is missing) and
 ``parameters.json`` (model, counts by status, the settings, the warnings by kind, names
 and units, timings, and the rows of ``map.csv`` as objects, strict JSON). ``map.nc`` holds
 the same columns as variables and the settings as attributes.
@@ -130,7 +134,7 @@ def result_table(result) -> dict:
                      "matrix": [[_num(x) for x in row] for row in result.correlation]},
         warnings=list(result.warnings),
         timings_s={k: float(v) for k, v in result.timings.items()},
-        inputs=[_input_info(c) for c in result.curves],
+        inputs=[_input_info(i, c, result) for i, c in enumerate(result.curves)],
     )
     return out
 
@@ -157,7 +161,7 @@ def _loading(result) -> dict:
             "spring_constant_N_m": [float(k) for k in np.asarray(result.data.stiffness)]}
 
 
-def _input_info(curve) -> dict:
+def _input_info(i, curve, result) -> dict:
     k = curve.spring_constant
     time = np.asarray(curve.time)
     out = {"source": curve.source, "segments": list(curve.segment_names),
@@ -165,9 +169,11 @@ def _input_info(curve) -> dict:
            "spring_constant_N_m": None if k is None else float(k), "contact": None}
     c = curve.contact
     if c is not None:
+        height, height_se = result.surface_height(i)
         out["contact"] = {"method": c.method, "time_s": _num(c.time),
                           "baseline": c.baseline, "baseline_region": c.baseline_region,
-                          "noise_N": _num(c.noise)}
+                          "noise_N": _num(c.noise), "surface_height_m": _num(height),
+                          "surface_height_m_stderr": _num(height_se)}
     return out
 
 
@@ -285,6 +291,8 @@ def map_columns(result) -> dict[str, list]:
               "baseline_region", "noise_N"):
         cols[k] = []
     settings = map_settings(result)
+    heights, height_se = result.surface_heights()
+    cols["surface_height_m"], cols["surface_height_m_stderr"] = list(heights), list(height_se)
     for r, e, curve in zip(result.results, result.errors, _curves(result), strict=True):
         cols["status"].append(_curve_status(r, e))
         cols["flags"].append(";".join(r.flags) if r is not None else "")

@@ -144,6 +144,20 @@ class FitResult:
         """Parameter values by short name."""
         return dict(zip(self.names, (float(v) for v in self.values), strict=True))
 
+    def surface_height(self, curve: int = 0) -> tuple[float, float]:
+        """The sample's surface height [m] at the contact of curve `curve` (index into
+        `curves`), with this fit's contact offset
+        (:meth:`fitting.Curve.surface_height`: the instrument's frame, larger for a taller
+        sample; a force map's topography), and its standard error (the contact offset's,
+        where it was fitted and determined; else nan). The height is nan where the file's
+        heights are relative to each curve's start or the curve has no contact point."""
+        c = self.curves[curve]
+        if not self.spec.contact_offset:
+            return c.surface_height(), math.nan
+        j = self.names.index("contact_offset")
+        se = float(self.stderr[j]) if self.status[j] == "ok" else math.nan
+        return c.surface_height(float(self.values[j])), se
+
     def __getitem__(self, name: str) -> float:
         return self.as_dict()[canonical_name(name, self.names)]
 

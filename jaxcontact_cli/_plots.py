@@ -154,7 +154,10 @@ def _map_title(name: str, unit: str) -> str:
 def plot_map(result, path=None):
     """Maps of a :class:`fitting.FitEachResult`; saved to `path` (PNG) if given.
 
-    One panel per free parameter and one for $R^2$ in contact, titled with its unit. Shear
+    One panel per free parameter, one for $R^2$ in contact and, where the file's heights
+    are the instrument's frame (JPK, Asylum), one of the sample's surface height at each
+    contact above the lowest one [µm] (:meth:`fitting.FitEachResult.surface_heights`: the
+    topography), titled with its unit. Shear
     moduli are drawn as Young's moduli $E = 3G$ (the incompressible half-space, $\nu = 0.5$:
     the field's convention; ``E0 [Pa] = 3 G0``), their errors scaled alike; ``map.csv`` keeps
     both. A force map (curves with
@@ -175,6 +178,11 @@ def plot_map(result, path=None):
     free = [j for j in range(len(result.names)) if not first.fixed[j]]
     panels = [(_map_title(result.names[j], result.units[j]), j) for j in free] + [
         ("R² in contact", None)]
+    heights, height_se = result.surface_heights()
+    if np.isfinite(heights).any():
+        panels.append(("surface height above the lowest [µm]", "height"))
+        low = np.nanmin(heights)
+        heights, height_se = (heights - low) * 1e6, height_se * 1e6
     vals, errs = result.values(), result.stderr()
     # shear moduli as Young's moduli, E = 3G (the titles say so)
     young = np.array([3.0 if u == "Pa" else 1.0 for u in result.units])
@@ -194,7 +202,9 @@ def plot_map(result, path=None):
                         for r, e in zip(result.results, result.errors, strict=True)])
     for k, (title, j) in enumerate(panels):
         ax = axes[k // ncol, k % ncol]
-        values = r2 if j is None else vals[:, j]
+        values = r2 if j is None else heights if j == "height" else vals[:, j]
+        height = j == "height"
+        j = None if height else j  # (no parameter's status, unit or log scale)
         if grid is not None:
             # the whole grid of the map (its shape from the file's metadata), one pixel per
             # grid point; points without a curve are grey
@@ -228,8 +238,8 @@ def plot_map(result, path=None):
         else:
             idx = np.arange(len(values))
             ok = np.array([st[j] == "ok" for st in status]) if j is not None else ~failed
-            e = np.zeros_like(values) if j is None else np.where(np.isfinite(errs[:, j]),
-                                                                 errs[:, j], 0.0)
+            se = height_se if height else None if j is None else errs[:, j]
+            e = np.zeros_like(values) if se is None else np.where(np.isfinite(se), se, 0.0)
             ax.errorbar(idx[ok], values[ok], yerr=e[ok], fmt="o", ms=4, color="tab:blue")
             rest = ~ok & ~failed
             ax.plot(idx[rest], values[rest], "o", mfc="none", color="tab:blue",

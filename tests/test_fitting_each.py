@@ -173,6 +173,8 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
         assert float(rows[k]["tabor_mu_1"]) == pytest.approx(float(jc.tabor_parameter(
             R, float(rows[k]["work_of_adhesion_J_m2"]), 4 * float(rows[k]["G0_Pa"]))))
         assert float(rows[k]["tabor_mu_1"]) > 5 and float(rows[k]["tabor_mu_1_stderr"]) > 0
+        # synthetic curves have no frame of heights: no surface height, not a false one
+        assert rows[k]["surface_height_m"] == rows[k]["surface_height_m_stderr"] == ""
     table = json.loads(paths["json"].read_text())
     assert table["settings"]["radius_m"] == R and table["settings"]["model"] == "relaxed"
     # the search's settings, as given (n_starts) and the defaults otherwise
@@ -278,6 +280,13 @@ def test_force_map_file_through_the_command_line(tmp_path, capsys):
     assert np.all(ds["r_squared_contact"].values > 0.8)
     rows = (out / "map.csv").read_text().splitlines()
     assert rows[0].startswith("curve,source,grid_x,grid_y") and len(rows) == 5
+    # the topography: each point's surface height in the strain gauge's frame
+    heights = ds["surface_height_m"].values
+    assert np.all(np.isfinite(heights)) and len(set(heights.tolist())) == 4
+    curves = fitting.load_afm("tests/data/force-map-2x2.jpk-force-map")
+    for c, h, d in zip(curves, heights, ds["contact_offset_m"].values, strict=True):
+        assert h == pytest.approx(c.metadata["height at start"] - c.contact.tip_position + d,
+                                  rel=1e-12)
 
 
 def test_force_map_with_no_usable_curve_is_one_line(tmp_path, capsys):

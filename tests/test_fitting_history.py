@@ -120,6 +120,31 @@ def test_a_coarser_search_grid_ends_on_the_fit_grid(shifted, subsampled_fit):
     assert table["polish_losses"] == pytest.approx(list(coarse.polish_losses))
 
 
+def test_surface_height_from_the_fitted_contact():
+    """A raw curve in an instrument's frame of heights (h = H0 - u, heights decreasing
+    toward the sample; the surface at u = 0.3 um): the contact detected on its soft onset
+    lies past the surface, and the fitted contact offset moves it back. The result's
+    surface height is H0 - 0.3 um within 3.5 standard errors of the offset; the detected
+    contact alone (`Curve.surface_height()`, no offset) is off by more than that. Without
+    a height frame (no "height at start") it is nan."""
+    t, d, f, counts = _history(0.01, 3)
+    h0, truth = 80e-6, 80e-6 + d[0]  # d[0] = -0.3 um: the surface 0.3 um below h0
+    raw = _curve(t, d - d[0], f, counts, metadata={"height at start": h0})
+    curve = fitting.preprocess(raw, baseline="constant", contact_point="detect")
+    detected = curve.surface_height()
+    res = _fit(curve, contact_point="fit", max_samples=BUDGET)
+    height, se = res.surface_height()
+    j = res.names.index("contact_offset")
+    assert res.status[j] == "ok" and se == res.stderr[j] > 0
+    assert abs(height - truth) < 3.5 * se, (height - truth, se)
+    assert abs(detected - truth) > 3.5 * se  # the offset mattered, with its sign
+    assert height == pytest.approx(detected + res.values[j], rel=0, abs=1e-15)
+    assert np.isnan(curve.replace(metadata={}).surface_height())
+    assert np.isnan(raw.surface_height())  # not preprocessed: no contact point
+    table = fitting._report.result_table(res)
+    assert table["inputs"][0]["contact"]["surface_height_m"] == pytest.approx(height)
+
+
 @pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)
 def test_subsampling_does_not_bias_the_history_fit(shifted, subsampled_fit):
     """All 900 samples against 150 kept ones (each standing for its neighbours): the same

@@ -305,3 +305,24 @@ def test_loaded_curves_pickle_with_plain_metadata(name):
 
         raw = afmformats.load_data(DATA / name)[0]
         assert meta["z range"] == pytest.approx(np.ptp(raw["height (piezo)"]))
+
+
+def test_height_frame_of_instrument_files():
+    """`metadata["height at start"]`: the first sample's height in the instrument's frame,
+    equal to the file's own first height as afmformats reads it, and different between a
+    map's points (JPK strain gauge, Asylum Z sensor); absent where each curve's heights
+    start at 0 (Bruker force volumes: the nominal ramp; Optics11 exports), whose surface
+    heights are therefore nan, not a false topography."""
+    curves = fitting.load_afm(MAP)
+    raw = afmformats.load_data(MAP)
+    starts = [c.metadata["height at start"] for c in curves]
+    assert starts == [float(ds["height (measured)"][0]) for ds in raw]
+    assert len(set(starts)) == len(starts)  # one frame: the points start at other heights
+    for c, h0 in zip(curves, starts, strict=True):
+        assert c.surface_height() == pytest.approx(h0 - c.contact.tip_position, rel=1e-12)
+    ibw = fitting.load_afm(DATA / "sin-force-distance.ibw")[0]
+    assert ibw.metadata["height at start"] == float(
+        afmformats.load_data(DATA / "sin-force-distance.ibw")[0]["height (measured)"][0])
+    for path in (DATA / "bruker-egel-force-volume-16x16.spm", CHIARO):
+        c = fitting.load_curve(path, on_error="keep")[0]
+        assert "height at start" not in c.metadata and np.isnan(c.surface_height())

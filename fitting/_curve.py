@@ -173,6 +173,12 @@ class ContactPoint:
       ``retract_baseline="separate"``; else 0).
     - `retract_time`: time [s] of the first retract sample when ``retract_offset``
       applies, else ``inf``.
+    - `trend`: the rise [N] of a straight line in time through the free force, from the
+      free samples' mean time to the end of the approach (signed; measured whatever the
+      baseline: a tilt of the approach or a drift, which a ``"constant"`` baseline leaves
+      in the data), `trend_error` [N] its standard error and `trend_noise` [N] the free
+      force's scatter about the line (both nan when no free force was found); see the
+      ``baseline_trend`` step of :func:`preprocess`.
     """
 
     index: int
@@ -187,6 +193,9 @@ class ContactPoint:
     baseline: str = "constant"
     retract_offset: float = 0.0
     retract_time: float = math.inf
+    trend: float = 0.0
+    trend_error: float = math.nan
+    trend_noise: float = math.nan
 
     def baseline_force(self, time) -> np.ndarray:
         """The subtracted baseline [N] at the given times [s] (array like ``time``)."""

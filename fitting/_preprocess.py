@@ -45,8 +45,18 @@ one :class:`Preprocessing`:
    fails this). This anchors the drift at both ends of the curve; the detection is then
    repeated with the new baseline. ``retract_baseline=True`` always joins the tail (also
    for ``"constant"``), ``False`` never, ``"separate"`` gives the retract its own offset.
-5. ``tip_position``: the baselined force and the tip position (see above).
-6. ``contact_point``: the tip position at the detected index, or with
+5. ``baseline_trend``: the straight line in time through the final free force, whatever
+   the baseline: its rise from the free samples' mean time to the end of the approach
+   (``ContactPoint.trend``: what a ``"constant"`` baseline leaves in the data at the
+   deepest point), that rise's standard error (``trend_error``) and the scatter about the
+   line (``trend_noise``). Measured to the end of the approach, not over the free force
+   alone: a rising trend read as a constant moves the detected contact early, which
+   shortens the free force, so that its own rise stays near the threshold whatever the
+   tilt. Under a ``"constant"`` baseline a large, significant rise is a tilt of the
+   approach (virtual deflection) or a drift; a fit flags it (:mod:`fitting._quality`,
+   ``baseline_trend``).
+6. ``tip_position``: the baselined force and the tip position (see above).
+7. ``contact_point``: the tip position at the detected index, or with
    ``contact_point="fit"`` refined by least squares of the Hertz-like power law
    ``F = a (p − p_c)_+^n`` (``n = contact_exponent``, 3/2 for a sphere) over the approach
    samples up to where the force first reaches ``fit_fraction`` of its approach maximum;
@@ -233,7 +243,8 @@ def preprocess(
         noise=st.noise, method=contact_point or "none", baseline=baseline or "none",
         baseline_region=st.region,
         retract_offset=st.retract_offset if baseline is not None else 0.0,
-        retract_time=st.retract_time,
+        retract_time=st.retract_time, trend=st.trend, trend_error=st.trend_error,
+        trend_noise=st.trend_noise,
     )
     return dataclasses.replace(
         curve, displacement=st.tip - st.p_c, force=st.force, spring_constant=k, contact=cp,
@@ -252,7 +263,9 @@ class Preprocessing:
     `region` (``"rest"``, ``"approach"``, ``"none"``, with ``"+retract"`` when the
     retract's tail joined); `offset` [N], `slope` [N/s], `noise` [N] of the baseline,
     `scale` [N] (largest baselined approach force), `sig` [N] (the noise, at least
-    1e-12 of the scale); `index` (contact index on the approach); `retract_offset` [N]
+    1e-12 of the scale); `index` (contact index on the approach); `trend`, `trend_error`,
+    `trend_noise` [N] (the free force's straight line: its rise to the end of the approach,
+    that rise's standard error, the scatter about the line); `retract_offset` [N]
     from `retract_time` [s] on; `baselined` [N] (force less the baseline, for the tip
     position and the detection), `force` [N] (the output force), `tip` [m] (tip position
     toward the sample); `p_c` [m] and `contact_index` (sample index) of the contact.
@@ -279,6 +292,9 @@ class Preprocessing:
     index: int | None = None
     retract_offset: float = 0.0
     retract_time: float = math.inf
+    trend: float = 0.0
+    trend_noise: float = math.nan
+    trend_error: float = math.nan
     baselined: np.ndarray | None = None
     force: np.ndarray | None = None
     tip: np.ndarray | None = None
@@ -425,6 +441,22 @@ def _retract_baseline(st: Preprocessing) -> None:
             st.index = st.detect()
 
 
+@step("baseline_trend")
+def _baseline_trend(st: Preprocessing) -> None:
+    """The straight-line trend of the free force in time, whatever the baseline: its rise
+    from the free samples' mean time to the end of the approach, its standard error and
+    the scatter about the line (what a constant baseline leaves in the data)."""
+    if st.free is None or st.free.size < 3:
+        return
+    t, f = st.curve.time[st.free], st.curve.force[st.free]
+    tm = float(np.mean(t))
+    slope, offset = np.polyfit(t - tm, f, 1)
+    st.trend_noise = max(float(np.std(f - offset - slope * (t - tm))), 1e-12 * st.scale)
+    reach = float(st.curve.time[st.approach[-1]]) - tm
+    st.trend = float(slope * reach)
+    st.trend_error = st.trend_noise * reach / float(np.sqrt(np.sum((t - tm) ** 2)))
+
+
 @step("tip_position")
 def _tip_position(st: Preprocessing) -> None:
     """The baselined force and the tip position ``p = u - F/k`` (``u`` without a spring
@@ -463,8 +495,8 @@ def _contact_point(st: Preprocessing) -> None:
 
 
 #: The pipeline of :func:`preprocess`: the registered steps (:data:`STEPS`) in this order.
-PIPELINE = ("free_region", "baseline", "contact_index", "retract_baseline", "tip_position",
-            "contact_point")
+PIPELINE = ("free_region", "baseline", "contact_index", "retract_baseline", "baseline_trend",
+            "tip_position", "contact_point")
 
 
 def preprocessing_steps() -> dict[str, str]:

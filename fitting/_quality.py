@@ -42,6 +42,17 @@ Flags (:data:`FLAGS`; each with a message naming the numbers):
   approach's. The model cannot describe these samples, and every sample counts in the
   objective (:mod:`fitting._objective`), so they pull on the parameters; the message names
   the offset, its duration, its share of χ² and what to try.
+- ``baseline_trend``: a curve preprocessed with a constant baseline whose free force
+  (the rest segment, or the approach before the contact) follows a straight line in time
+  that rises or falls, by the end of the approach, by at least :data:`TREND_SIGMA` times
+  both the free force's scatter about the line and the rise's standard error
+  (``ContactPoint.trend``, ``trend_noise``, ``trend_error``; :func:`baseline_trend`): a
+  tilt of the approach (virtual deflection), a drift or an interference wave, which the
+  constant baseline leaves in the data. It inflates the noise estimate (by
+  $\sqrt{1 + (A/\sigma)^2/12}$ for a rise $A$ over the free force itself and scatter
+  $\sigma$: the reduced $\chi^2$ follows it), can put the detected contact point on a
+  bump of the baseline, and continues into the contact as a force the model does not
+  have; the message gives the trend and the remedy (a linear baseline, for a line).
 - ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
   gives the reason (the step limit, or a stop without progress) and what to try.
 - ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`),
@@ -87,7 +98,7 @@ from ._uncertainty import delta_method, derived_quantities
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
            "r_squared_rows", "segment_quality", "segment_quality_rows", "contact_outside",
            "force_after_detachment", "AFTER_DETACHMENT_SAMPLES", "AFTER_DETACHMENT_SIGMA",
-           "AFTER_DETACHMENT_SHARE",
+           "AFTER_DETACHMENT_SHARE", "baseline_trend", "TREND_SIGMA",
            "convergence", "check_contact_signal",
            "assess", "warning_kinds", "warn_summary", "tabor_entry", "TABOR_JKR_MIN"]
 
@@ -103,7 +114,7 @@ SIGNAL_RUN = 5
 
 #: The flags of a fit (see the module docstring).
 FLAGS = ("model_inadequate", "segment_not_described", "contact_outside_data",
-         "force_after_detachment", "not_converged", "outside_jkr_limit")
+         "force_after_detachment", "baseline_trend", "not_converged", "outside_jkr_limit")
 
 #: Tabor's parameter below which a fit is flagged ``outside_jkr_limit``. Johnson and
 #: Greenwood's adhesion map (J. Colloid Interface Sci. 192, 326 (1997)) puts the JKR zone at
@@ -119,6 +130,45 @@ TABOR_JKR_MIN = 5.0
 AFTER_DETACHMENT_SAMPLES = 10
 AFTER_DETACHMENT_SIGMA = 3.0
 AFTER_DETACHMENT_SHARE = 0.01
+
+
+#: :func:`baseline_trend`: the least rise of the free force's straight line to the end of
+#: the approach, in units of the free force's scatter about the line and of the rise's
+#: standard error, for a constant baseline to be flagged: the preprocessing's contact
+#: threshold (5 σ, :func:`fitting.preprocess`), so that what the constant baseline leaves
+#: at the deepest point reaches what the detection counts as contact, and the rise is not
+#: noise.
+TREND_SIGMA = 5.0
+
+
+def baseline_trend(curves) -> list[str]:
+    """One message per curve of `curves` (preprocessed :class:`fitting.Curve`) with a
+    constant baseline whose free force's straight line in time rises or falls, by the
+    end of the approach, by at least :data:`TREND_SIGMA` times both the free force's
+    scatter about the line and the rise's standard error (``ContactPoint.trend``,
+    ``trend_noise``, ``trend_error``): what it is, what it does to the fit, and what to
+    try."""
+    msgs = []
+    for n, c in enumerate(curves):
+        cp = c.contact
+        if cp is None or cp.baseline != "constant" or not math.isfinite(cp.trend_noise) \
+                or abs(cp.trend) < TREND_SIGMA * max(cp.trend_noise, cp.trend_error):
+            continue
+        label = f"curve {n}" + (f" ({c.source})" if c.source else "")
+        msgs.append(
+            f"{label}: the free force before contact ({cp.baseline_region}) has a trend "
+            f"in time that {'rises' if cp.trend > 0 else 'falls'} by {abs(cp.trend):.3g} N "
+            f"by the end of the approach, {abs(cp.trend) / cp.trend_noise:.1f} times its "
+            f"scatter about the line ({cp.trend_noise:.3g} N): a tilt of the approach "
+            "(virtual deflection), a drift or an interference wave, which the constant "
+            f"baseline leaves in the data; its noise estimate ({cp.noise:.3g} N, "
+            f"{cp.noise / cp.trend_noise:.2g} times the scatter about the line) and the "
+            "reduced chi2 follow it, the detected contact point may lie on a bump of the "
+            "baseline, and the trend continues into the contact as a force the model does "
+            "not have, so the fitted values can depend on it (the work of adhesion most): "
+            "if it is a line in time, refit with baseline='linear' (command line: "
+            "--baseline linear) and compare; a wave no baseline here removes")
+    return msgs
 
 
 def r_squared(model, force, weight, mask) -> float:
@@ -435,6 +485,9 @@ def assess(result, *, max_steps: int | None = None, evaluated=None,
                                float(result["contact_offset"]))
         if msgs:
             flags["contact_outside_data"] = "; ".join(msgs)
+    msgs = baseline_trend(result.curves)
+    if msgs:
+        flags["baseline_trend"] = "; ".join(msgs)
     if result.model_contact_radius is not None:
         msgs = force_after_detachment(data.ts, data.force, result.model_force, data.noise,
                                       data.weight, data.valid, data.segment,

@@ -23,6 +23,8 @@ _FLAG_TEXT = {
                             "is not described",
     "force_after_detachment": "after the model's jump-off the measured force stays off the "
                               "model's (tethers? a retract offset?): see the warnings",
+    "baseline_trend": "the free force before contact has a trend the constant baseline "
+                      "leaves in the data (try --baseline linear): see the warnings",
     "not_converged": "NOT CONVERGED: the best point found is shown",
     "outside_jkr_limit": "outside the JKR limit (Tabor's mu < 5): the work of adhesion is "
                          "biased",
@@ -44,9 +46,9 @@ def plot_fit(result, path=None):
     residuals (model − data)/σ against time (σ: the curve's noise), and the fitted values
     with their standard errors (and what they are) and the fit quality, overall and per
     segment, with the fit's flags in red (model inadequate, a segment not described, the
-    contact outside the data, a force after the jump-off, not converged, outside the JKR
-    limit). Colours mark the segments (approach, hold, retract), the black line is the
-    model; the dashed vertical line is the detected contact point (indentation 0), the
+    contact outside the data, a force after the jump-off, a baseline trend, not converged,
+    outside the JKR limit). Colours mark the segments (approach, hold, retract), the black
+    line is the model; the dashed vertical line is the detected contact point (indentation 0), the
     dotted one the fitted contact point (when the contact offset was fitted). Returns the
     matplotlib figure.
     """

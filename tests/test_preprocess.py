@@ -66,6 +66,45 @@ def test_linear_baseline_and_noise_recovered():
     assert cp.time == c.time[cp.index]
 
 
+def test_baseline_trend_measured_and_flagged():
+    """The free force's straight-line trend (``ContactPoint.trend``: its rise from the free
+    samples' mean time to the end of the approach) against its closed form, tilt x that
+    time; its scatter against the noise put in; its standard error (``trend_error``)
+    against the scatter of the trend over 40 noise seeds; the constant baseline's noise
+    against sqrt(sigma^2 + A^2/12) (A: the rise over the free samples themselves); and
+    the flag (`fitting._quality.baseline_trend`): named for a constant baseline under a
+    large, significant trend, not under a linear baseline, not for noise alone."""
+    from fitting._quality import baseline_trend
+
+    sigma = 5e-12
+    end = 2.0 - 1 / FS  # the last approach sample's time [s]
+    for tilt in (50e-12, -50e-12, 0.0):
+        c, _ = synth(2, tilt=tilt, noise=sigma)
+        cp = fitting.preprocess(c, baseline="constant").contact
+        assert cp.baseline_region == "approach"
+        n = int(0.9 * cp.index)  # the free samples (the detection's last refit)
+        t = c.time[:n]
+        assert cp.trend == pytest.approx(tilt * (end - t.mean()), abs=4 * cp.trend_error)
+        assert cp.trend_noise == pytest.approx(sigma, rel=0.1)
+        free_rise = cp.trend * (t[-1] - t[0]) / (end - t.mean())
+        assert cp.noise == pytest.approx(np.hypot(cp.trend_noise, free_rise / np.sqrt(12)),
+                                         rel=0.02)
+        msgs = baseline_trend([c.replace(contact=cp, source="s.jpk-force")])
+        if tilt:  # 50 pN/s over ~1.5 s: ~15 sigma
+            (msg,) = msgs
+            assert msg.startswith("curve 0 (s.jpk-force)") and "--baseline linear" in msg
+            assert ("rises" if tilt > 0 else "falls") in msg
+        else:
+            assert msgs == []
+        lin = fitting.preprocess(c, baseline="linear")
+        assert baseline_trend([lin]) == []  # the line is subtracted: nothing left to flag
+    trends = [fitting.preprocess(synth(s, tilt=0.0, noise=sigma)[0]).contact
+              for s in range(40)]
+    errors = np.array([cp.trend_error for cp in trends])
+    assert np.std([cp.trend for cp in trends]) == pytest.approx(np.mean(errors), rel=0.3)
+    assert np.mean([abs(cp.trend) >= 5 * cp.trend_error for cp in trends]) == 0
+
+
 def test_slow_soft_onset():
     # 10x softer: 0.2 nN at 1 µm, the force leaves the noise ~100 nm after contact
     fit = contact_errors("fit", "linear", a=0.2)
@@ -145,7 +184,7 @@ def test_steps_are_registered_by_name_and_run_in_the_pipeline_order(monkeypatch)
 
     steps = fitting.preprocessing_steps()
     assert list(steps) == ["free_region", "baseline", "contact_index", "retract_baseline",
-                           "tip_position", "contact_point"]
+                           "baseline_trend", "tip_position", "contact_point"]
     assert all(isinstance(d, str) and d for d in steps.values())
     calls = []
     for name, s in list(_preprocess.STEPS.items()):

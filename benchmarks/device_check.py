@@ -4,6 +4,7 @@ tables that need a GPU (issues: identification at scale, sweeps at device speed)
     PYTHONPATH=. python benchmarks/device_check.py [--fit-curves 128,4096,16384]
         [--baseline-workers 64] [--history-fit 256] [--sweep-max 10000000]
         [--history 32768,131072] [--repeats 2] [--search JSON ...]
+        [--history-search JSON ...]
 
 Prints markdown rows (warm medians of `--repeats` calls after one cold call):
 `fitting.fit_each` on the synthetic relaxed-start map of `bench_fit_each.py` with the
@@ -82,7 +83,9 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=()):
             cold, warm, res = timed(lambda b=batch, n=n, s=search: fitting.fit_each(
                 curves[:n], batch=b, **kw, **s), 0 if seen else repeats)
             t = res.timings
-            steps = np.mean([np.sum(r.start_steps) for r in res.results if r is not None])
+            steps = np.mean([np.sum(r.start_steps) + (0 if r.polish_steps is None
+                                                      else np.sum(r.polish_steps))
+                             for r in res.results if r is not None])
             print(f"| {label} | {n:,} | {size} | {lanes:,} | "
                   f"{'-' if seen else f'{cold:.1f}'} | {warm:.2f} | {n / warm:.1f} | "
                   f"{1e3 * t['prepare'] / n:.2f} / {1e3 * t['optimise'] / n:.2f} / "
@@ -117,6 +120,9 @@ def main(argv=None):
     ap.add_argument("--search", action="append", default=[], metavar="JSON",
                     help="search options run on the first relaxed map size beside the "
                          "default, e.g. '{\"screen\": 1024, \"n_starts\": 8}' (repeatable)")
+    ap.add_argument("--history-search", action="append", default=[], metavar="JSON",
+                    help="search options run on the first history map size beside the "
+                         "default, e.g. '{\"search_cells\": 16}' (repeatable)")
     args = ap.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     warnings.simplefilter("ignore")
@@ -131,7 +137,7 @@ def main(argv=None):
     hist_sizes = [int(x) for x in str(args.history_fit).split(",") if x.strip()]
     if hist_sizes:
         fit_rows(make_history_map(max(hist_sizes), 200), hist_sizes, 0, "history",
-                 args.repeats)
+                 args.repeats, [json.loads(s) for s in args.history_search])
 
     print("\n| relaxed sweep points | precision | cold [s] | warm [s] | curves/s |\n"
           "| --- | --- | --- | --- | --- |", flush=True)

@@ -11,7 +11,8 @@ constant baseline's noise over the scatter about the line (median), and the medi
 largest shift of the detected contact (tip position, linear minus constant). With `--fit`,
 a file's first curve is also fitted with both baselines (`fitting.fit`, full-history
 standard model, a paraboloid of `--radius`, contact point fitted, default search): χ²_red
-(each against its own noise estimate: not comparable between the baselines), R² in contact,
+(against each run's own noise estimate, and both against one noise, the free force's
+scatter about its straight line, so that the baselines compare), R² in contact,
 the fitted contact (tip position, detected plus the fitted offset) and the relative change
 of G0, G1, η1, Δγ.
 
@@ -67,7 +68,7 @@ def _fit(path: str, baseline: str, radius: float):
         warnings.simplefilter("ignore")
         res = fitting.fit(curve, radius=radius, model="history", progress=False)
     contact = curve.contact.tip_position - res["contact_offset"]
-    return res, contact, time.perf_counter() - t0
+    return res, curve.contact, contact, time.perf_counter() - t0
 
 
 def main(argv=None) -> None:
@@ -105,27 +106,32 @@ def main(argv=None) -> None:
         print(lines[-1], file=sys.stderr, flush=True)
         if args.fit:
             try:
-                (a, ca, ta), (b, cb, tb) = (_fit(f, bl, args.radius)
-                                            for bl in ("constant", "linear"))
+                (a, pa, ca, ta), (b, pb, cb, tb) = (_fit(f, bl, args.radius)
+                                                    for bl in ("constant", "linear"))
             except (ValueError, OSError) as exc:
                 fits.append(f"| {name} | not fitted: {' '.join(str(exc).split())[:120]} |")
                 continue
             change = ", ".join(f"{b[k] / a[k] - 1:+.0%}" for k in MATERIAL)
-            for label, r, c, dt, ch in (("constant", a, ca, ta, ""),
-                                        ("linear", b, cb, tb, change)):
+            unit = pa.trend_noise  # one noise for both: the scatter about the free line
+            for label, r, cp, c, dt, ch in (("constant", a, pa, ca, ta, ""),
+                                            ("linear", b, pb, cb, tb, change)):
                 flags = ", ".join(r.flags) or "ok"
-                fits.append(f"| {name} | {label} | {r.reduced_chi2:.4g} | "
+                common = r.reduced_chi2 * (cp.noise / unit) ** 2
+                fits.append(f"| {name} | {label} | {r.reduced_chi2:.4g} | {common:.4g} | "
                             f"{r.r_squared_contact:.4f} | {c * 1e6:.3f} | {flags} | {ch} | "
                             f"{dt:.0f} |")
             print(*fits[-2:], sep="\n", file=sys.stderr, flush=True)
     if fits:
         lines += ["", "Fits of each file's first curve (full-history standard model, contact "
-                  "point fitted, default search): *fitted contact*: the detected contact's "
+                  "point fitted, default search): *χ²_red* against each run's own noise "
+                  "estimate; *χ²_red, one noise*: both against the scatter of the free force "
+                  "about its straight line (the constant baseline's run's `trend_noise`), so "
+                  "that the two baselines compare; *fitted contact*: the detected contact's "
                   "tip position less the fitted offset [µm]; *change*: G0, G1, η1, Δγ from "
                   "the constant to the linear baseline.", "",
-                  "| file | baseline | χ²_red | R² in contact | fitted contact [µm] | flags | "
-                  "change (G0, G1, η1, Δγ) | time [s] |",
-                  "|---|---|---|---|---|---|---|---|", *fits]
+                  "| file | baseline | χ²_red | χ²_red, one noise | R² in contact | fitted "
+                  "contact [µm] | flags | change (G0, G1, η1, Δγ) | time [s] |",
+                  "|---|---|---|---|---|---|---|---|---|", *fits]
     write_table(args.out, lines)
 
 

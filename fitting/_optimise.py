@@ -455,9 +455,9 @@ def fit(curves: Curve | Sequence[Curve], *, options: FitOptions | None = None,
     - `options`: a :class:`fitting.FitOptions`, or its fields as keywords (`radius`,
       `profile`, `model`, `rheology`, `spring_constant`, `initial`, `fixed`, `bounds`,
       `contact_point`, `force_offset`, `n_starts`, `max_samples`, `indentation_range`,
-      `segments`, `cells`, `search_cells`, `max_steps`, `optimiser`, `rtol`, `seed`, `local_rounds`,
-      `progress`; meanings, units and defaults there). A keyword given beside `options`
-      must agree with it.
+      `segments`, `cells`, `search_cells`, `max_steps`, `optimiser`, `rtol`, `seed`,
+      `local_rounds`, `progress`; meanings, units and defaults there). A keyword given
+      beside `options` must agree with it.
 
     How it relates to :func:`fitting.fit_each`: both run one pipeline (:func:`identify`:
     the same preparation, starts, global search, local rounds and finish); `fit` is its
@@ -858,11 +858,11 @@ def _pad(problems: dict) -> None:
 
 @dataclasses.dataclass
 class _Searched:
-    """A problem's search (host solutions, :class:`Solution`, one lane per start): `final`, the
-    starts on the fit's own grid, whose best is the result (the search itself, or with a
-    coarser search grid the polished end points, :func:`_polish`), and `search`, the
-    search on the coarser grid (``FitOptions.search_cells``; `None`: it ran on the fit's
-    grid, `final`)."""
+    """A problem's search (host solutions, :class:`Solution`, one lane per start):
+    `final`, the starts on the fit's own grid, whose best is the result (the search
+    itself, or with a coarser search grid the polished end points, :func:`_polish`), and
+    `search`, the search on the coarser grid (``FitOptions.search_cells``; `None`: it ran
+    on the fit's grid, `final`)."""
 
     final: Solution
     search: Solution | None = None
@@ -1066,7 +1066,7 @@ def _chunk_inputs(problems: list[_Problem], us, size: int, options: FitOptions, 
     return args, {"tabor": tabor, "model": model}
 
 
-def _finish_chunk(problems: list[_Problem], outs: list[Solution], size: int,
+def _finish_chunk(problems: list[_Problem], outs: list[_Searched], size: int,
                   options: FitOptions, failed=(), *, evaluate=None) -> list:
     """What :func:`_finish` needs of each problem's best start, for a chunk of equally
     shaped `problems` at once (:func:`_evaluate_chunk`, padded to `size` problems; the

@@ -166,8 +166,10 @@ def baseline_trend(curves) -> list[str]:
             "reduced chi2 follow it, the detected contact point may lie on a bump of the "
             "baseline, and the trend continues into the contact as a force the model does "
             "not have, so the fitted values can depend on it (the work of adhesion most): "
-            "if it is a line in time, refit with baseline='linear' (command line: "
-            "--baseline linear) and compare; a wave no baseline here removes")
+            "refit with baseline='linear' (command line: --baseline linear) and compare "
+            "the two fits in one noise (each reduced chi2 as printed is against its own "
+            "noise estimate: multiply it by (that noise / "
+            f"{cp.trend_noise:.3g} N)^2); a wave no baseline here removes")
     return msgs
 
 

@@ -197,13 +197,27 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     assert f"{np.median(g0):12.5g}   (ok 3)" in text
 
 
-def test_map_figure_draws_young_moduli_with_units(each):
+def test_map_figure_draws_young_moduli_with_units(each, monkeypatch):
     from jaxcontact_cli._plots import plot_map
 
     fig = plot_map(each)
     axes = {ax.get_title(): ax for ax in fig.axes if ax.get_title()}
     assert set(axes) >= {"E0 [Pa] = 3 G0", "E1 [Pa] = 3 G1", "eta1 [Pa s]",
                          "work_of_adhesion [J/m²]", "R² in contact"}
+    # curves without a frame of heights: no topography panel (not a false relief)
+    assert np.isnan(each.surface_heights()[0]).all()
+    assert not any(t.startswith("surface height") for t in axes)
+    # with heights (as a JPK or Asylum map has them): their panel, above the lowest, in µm,
+    # each at its grid point
+    heights = np.array([5e-6, 7e-6, 6.5e-6, np.nan, np.nan])[:len(each.results)]
+    monkeypatch.setattr(each, "surface_heights", lambda: (heights, heights * 1e-3))
+    fig2 = plot_map(each)
+    panel = next(ax for ax in fig2.axes if ax.get_title().startswith("surface height"))
+    img2 = panel.images[0].get_array()
+    for h, m in zip(heights, each.metadata, strict=True):
+        if np.isfinite(h):
+            assert img2[m["grid index y"], m["grid index x"]] == pytest.approx(
+                (h - 5e-6) * 1e6)
     img = axes["E0 [Pa] = 3 G0"].images[0].get_array()
     j = each.names.index("G0")
     for r, m in zip(each.results, each.metadata, strict=True):
@@ -212,6 +226,7 @@ def test_map_figure_draws_young_moduli_with_units(each):
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+    plt.close(fig2)
 
 
 def _with_approach(c, k=6):

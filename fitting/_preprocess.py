@@ -449,12 +449,13 @@ def _baseline_trend(st: Preprocessing) -> None:
     if st.free is None or st.free.size < 3:
         return
     t, f = st.curve.time[st.free], st.curve.force[st.free]
-    tm = float(np.mean(t))
-    slope, offset = np.polyfit(t - tm, f, 1)
-    st.trend_noise = max(float(np.std(f - offset - slope * (t - tm))), 1e-12 * st.scale)
-    reach = float(st.curve.time[st.approach[-1]]) - tm
-    st.trend = float(slope * reach)
-    st.trend_error = st.trend_noise * reach / float(np.sqrt(np.sum((t - tm) ** 2)))
+    dt = t - float(np.mean(t))
+    ss = float(dt @ dt)
+    slope = float(dt @ f) / ss  # the least-squares line about the mean time
+    st.trend_noise = max(float(np.std(f - np.mean(f) - slope * dt)), 1e-12 * st.scale)
+    reach = float(st.curve.time[st.approach[-1]] - np.mean(t))
+    st.trend = slope * reach
+    st.trend_error = st.trend_noise * reach / math.sqrt(ss)
 
 
 @step("tip_position")

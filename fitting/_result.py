@@ -149,9 +149,14 @@ class FitResult:
         `curves`), with this fit's contact offset
         (:meth:`fitting.Curve.surface_height`: the instrument's frame, larger for a taller
         sample; a force map's topography), and its standard error (the contact offset's,
-        where it was fitted and determined; else nan). The height is nan where the file's
-        heights are relative to each curve's start or the curve has no contact point."""
+        where it was fitted and determined; else nan). Both are nan where the fitted contact
+        lies outside the data (flag ``contact_outside_data``: the offset is a failure of the
+        model to describe the start of contact, not a measured contact). The height is nan
+        where the file's heights are relative to each curve's start or the curve has no
+        contact point."""
         c = self.curves[curve]
+        if "contact_outside_data" in self.flags:  # the fitted contact is no measured one
+            return math.nan, math.nan
         if not self.spec.contact_offset:
             return c.surface_height(), math.nan
         j = self.names.index("contact_offset")
@@ -196,7 +201,9 @@ class FitResult:
 
     def summary(self) -> str:
         """A short report: model, convergence, quality (overall and per segment), one line
-        per parameter, warnings."""
+        per parameter and per derived quantity, the sample's surface height at each
+        contact where the heights are the instrument's frame (:meth:`surface_height`),
+        warnings."""
         conv = "True" if self.converged else \
             f"False: {self.convergence.get('reason', 'did not converge')}"
         status = "ok" if self.converged and self.adequate and not self.flags else \
@@ -242,6 +249,16 @@ class FitResult:
                     lines.append(f"    {col:<26} {v:12.6g} +/- {s:<10.3g} {rel}")
                 else:
                     lines.append(f"    {col:<26} {d['value']:12.6g}   {d['status']}")
+        heights = [self.surface_height(i) for i in range(len(self.curves))]
+        if any(math.isfinite(h) for h, _ in heights):
+            lines.append("[[surface]] (the sample's surface where each curve touched it, in "
+                         "the instrument's frame of heights)")
+            for i, (h, se) in enumerate(heights):
+                if math.isfinite(h):
+                    err = f" +/- {se:.3g}" if math.isfinite(se) else (
+                        " (no error: the contact offset is not fitted, not determined or "
+                        "at a bound)")
+                    lines.append(f"    curve {i}: height {h:.9g} m{err}")
         if self.model_selection:
             lines.append("[[model selection]] (smallest BIC chosen)")
             for m in self.model_selection:

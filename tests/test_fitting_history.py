@@ -143,6 +143,10 @@ def test_surface_height_from_the_fitted_contact():
     assert np.isnan(raw.surface_height())  # not preprocessed: no contact point
     table = fitting._report.result_table(res)
     assert table["inputs"][0]["contact"]["surface_height_m"] == pytest.approx(height)
+    assert f"curve 0: height {height:.9g} m +/- {se:.3g}" in res.summary()
+    # a fitted contact outside the data is no measured surface: no height
+    outside = dataclasses.replace(res, flags=dict(res.flags, contact_outside_data="..."))
+    assert np.isnan(outside.surface_height()).all()
 
 
 @pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)

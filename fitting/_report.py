@@ -352,7 +352,9 @@ def map_settings(result) -> dict:
 def each_summary(result) -> str:
     """The console summary of a :class:`fitting.FitEachResult`: counts by status, the
     median of each parameter over the curves where it is "ok" (with the counts of every
-    status beside it), the warnings by kind, and one line per curve (at most 20)."""
+    status beside it) and, where the heights are the instrument's frame, of the surface
+    height with the map's relief, the warnings by kind, and one line per curve (at most
+    20)."""
     stat = [_curve_status(r, e) for r, e in zip(result.results, result.errors, strict=True)]
     n = len(stat)
     lines = [f"[[fit each]] model={result.model}, rheology={result.rheology}, {n} curve(s): "
@@ -372,6 +374,12 @@ def each_summary(result) -> str:
         r2 = [r.r_squared_contact for r in fitted]
         lines.append(f"    {'R^2 in contact':<26} {np.nanmedian(r2):12.4f}   "
                      f"(weighted; range {np.nanmin(r2):.3g} to {np.nanmax(r2):.3g})")
+        heights = result.surface_heights()[0]
+        known = heights[np.isfinite(heights)]
+        if known.size:
+            lines.append(f"    {'surface height [m]':<26} {np.median(known):12.6g}   "
+                         f"(relief {np.ptp(known):.3g} m over {known.size} curve(s): the "
+                         "topography, in the instrument's frame)")
     kinds = warning_kinds(result.results)
     if kinds:
         lines.append("[[warnings]] by kind (fitted curves with it: an example)")

@@ -207,11 +207,13 @@ def test_map_figure_draws_young_moduli_with_units(each, monkeypatch):
     # curves without a frame of heights: no topography panel (not a false relief)
     assert np.isnan(each.surface_heights()[0]).all()
     assert not any(t.startswith("surface height") for t in axes)
+    assert "surface height" not in each.summary()
     # with heights (as a JPK or Asylum map has them): their panel, above the lowest, in µm,
     # each at its grid point
     heights = np.array([5e-6, 7e-6, 6.5e-6, np.nan, np.nan])[:len(each.results)]
     monkeypatch.setattr(each, "surface_heights", lambda: (heights, heights * 1e-3))
     fig2 = plot_map(each)
+    assert "relief 2e-06 m over 3 curve(s)" in each.summary()  # the console says it too
     panel = next(ax for ax in fig2.axes if ax.get_title().startswith("surface height"))
     img2 = panel.images[0].get_array()
     for h, m in zip(heights, each.metadata, strict=True):

@@ -956,7 +956,7 @@ def _polish(fill: list[_Problem], outs: list[Solution], n: int, options: FitOpti
                              for p in picks]).astype(np.int32)
     out = jax.device_get(solve_batch(
         spec, _stack([pb.param for pb in fill], k), _stack([pb.data for pb in fill], k),
-        starts, limits=limits, workers=min(lanes, k * len(fill)), rtol=options.rtol,
+        starts, limits=limits, workers=lanes, rtol=options.rtol,
         max_steps=options.max_steps, optimiser=options.optimiser, devices=batch.devices,
         keep_jacobian=True))
     polished = [out.take(slice(j * k, j * k + max(len(picks[j]), 1))) for j in range(n)]

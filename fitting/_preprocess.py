@@ -84,13 +84,14 @@ __all__ = ["preprocess", "preprocessing_steps", "PIPELINE", "STEPS", "Step",
 
 
 def _baseline_fit(t, f, kind):
-    """``(offset, slope, noise)`` of ``f ≈ offset + slope t`` (slope 0 for "constant")."""
-    if kind == "linear" and len(t) >= 3 and np.ptp(t) > 0:
-        slope, offset = np.polyfit(t, f, 1)
-    else:
-        slope, offset = 0.0, float(np.mean(f))
-    resid = f - (offset + slope * t)
-    return float(offset), float(slope), float(np.std(resid))
+    """``(offset, slope, noise)`` of ``f ≈ offset + slope t`` (slope 0 for "constant"): the
+    least-squares line, in closed form about the mean time; `noise` the standard deviation
+    of the residuals."""
+    tm, fm = float(np.mean(t)), float(np.mean(f))
+    dt = t - tm
+    ss = float(dt @ dt)
+    slope = float(dt @ f) / ss if kind == "linear" and len(t) >= 3 and ss > 0 else 0.0
+    return fm - slope * tm, slope, float(np.std(f - fm - slope * dt))
 
 
 def _detect_index(fb, thr, min_run):
@@ -448,14 +449,13 @@ def _baseline_trend(st: Preprocessing) -> None:
     the scatter about the line (what a constant baseline leaves in the data)."""
     if st.free is None or st.free.size < 3:
         return
-    t, f = st.curve.time[st.free], st.curve.force[st.free]
-    dt = t - float(np.mean(t))
-    ss = float(dt @ dt)
-    slope = float(dt @ f) / ss  # the least-squares line about the mean time
-    st.trend_noise = max(float(np.std(f - np.mean(f) - slope * dt)), 1e-12 * st.scale)
-    reach = float(st.curve.time[st.approach[-1]] - np.mean(t))
+    t = st.curve.time[st.free]
+    _, slope, scatter = _baseline_fit(t, st.curve.force[st.free], "linear")
+    st.trend_noise = max(scatter, 1e-12 * st.scale)
+    tm = float(np.mean(t))
+    reach = float(st.curve.time[st.approach[-1]]) - tm
     st.trend = slope * reach
-    st.trend_error = st.trend_noise * reach / math.sqrt(ss)
+    st.trend_error = st.trend_noise * reach / math.sqrt(float(np.sum((t - tm) ** 2)))
 
 
 @step("tip_position")

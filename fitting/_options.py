@@ -249,8 +249,8 @@ class FitOptions(_Options):
       `start_losses` are the search's, on `search_cells`). A step costs less on a coarser
       grid, but the continuation is a second compiled program (~12 s on a 2-core CPU):
       worth it for maps of many curves, not for one. Measured with 16 of 32 cells
-      (`benchmarks/results/fit_each.md`): a history map 1.35 times faster once
-      compiled; the optima within ±2·10⁻⁶ of the one-grid search's $\chi^2$ on real
+      (`benchmarks/results/fit_each.md`): a 64-curve history map 1.14–1.29 times
+      faster once compiled; the optima within ±2·10⁻⁶ of the one-grid search's $\chi^2$ on real
       curves, lower on some and higher on others (neighbouring local optima of a rugged
       landscape, far inside the standard errors). Not used by the relaxed model.
     - `max_steps`: iterations per start, an integer >= 1 (default 200; `None` is the

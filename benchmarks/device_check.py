@@ -4,7 +4,7 @@ tables that need a GPU (issues: identification at scale, sweeps at device speed)
     PYTHONPATH=. python benchmarks/device_check.py [--fit-curves 128,4096,16384]
         [--baseline-workers 64] [--history-fit 256] [--sweep-max 10000000]
         [--history 32768,131072] [--repeats 2] [--search JSON ...]
-        [--history-search JSON ...]
+        [--history-search JSON ...] [--history-options JSON]
 
 Prints markdown rows (warm medians of `--repeats` calls after one cold call):
 `fitting.fit_each` on the synthetic relaxed-start map of `bench_fit_each.py` with the
@@ -54,9 +54,10 @@ def _peak_gib():
     return stats.get("peak_bytes_in_use", float("nan")) / 2**30
 
 
-def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=()):
+def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=(), base=None):
     """`fitting.fit_each` on the first `n` of `curves` for each `n` of `sizes` with the
-    platform's default schedule (`BatchOptions()`: chunk and lanes); on the first size
+    platform's default schedule (`BatchOptions()`: chunk and lanes) and the search options
+    `base` (a dict as `searches`' below; default none: the default search); on the first size
     also the CPU schedule (`chunk=n, workers=baseline_workers`) for a paired baseline, and
     each of `searches` (dicts of search options of `fitting.FitOptions`, e.g. ``{"screen":
     1024, "n_starts": 8}``), with the χ² of every curve compared to the default's."""
@@ -66,8 +67,10 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=()):
           "optimise / finish [ms per curve] | LM steps a curve | peak device memory [GiB] |\n"
           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |", flush=True)
     first = {}
+    base = dict(base or {})
     for i, n in enumerate(sizes):
-        runs = [("platform default", {}, {})]
+        runs = [("platform default" + (f", search {json.dumps(base)}" if base else ""), {},
+                 base)]
         if i == 0 and baseline_workers:
             runs.append((f"CPU's ({baseline_workers} lanes)",
                          dict(chunk=n, workers=baseline_workers), {}))
@@ -79,7 +82,7 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=()):
             lanes = batch.lanes(size, search.get("n_starts", fitting.DEFAULT_STARTS))
             # sizes whose chunk was compiled by an earlier row: one call only
             seen = (any(batch.chunk_for(m) == size for m in sizes[:i]) and not extra
-                    and not search)
+                    and search is base)
             cold, warm, res = timed(lambda b=batch, n=n, s=search: fitting.fit_each(
                 curves[:n], batch=b, **kw, **s), 0 if seen else repeats)
             t = res.timings
@@ -94,13 +97,14 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=()):
             if i == 0:
                 first[label] = np.array([r.chi2 if r is not None else np.nan
                                          for r in res.results])
-    base = first.pop("platform default", None)
+    ref_label = runs[0][0] if sizes else None
+    ref = first.pop(ref_label, None)
     for label, other in first.items():
-        lower = int(np.sum(base <= other * (1 + 1e-9)))
-        print(f"\nχ² of the platform default against {label} on the same "
+        lower = int(np.sum(ref <= other * (1 + 1e-9)))
+        print(f"\nχ² of the {ref_label} against {label} on the same "
               f"{other.size} curves: no higher (+1e-9 relative) on {lower}/{other.size}; "
-              f"{label} higher by at most {np.nanmax(other / base - 1):.2g} (relative), "
-              f"lower by at most {np.nanmax(1 - other / base):.2g}", flush=True)
+              f"{label} higher by at most {np.nanmax(other / ref - 1):.2g} (relative), "
+              f"lower by at most {np.nanmax(1 - other / ref):.2g}", flush=True)
 
 
 def main(argv=None):
@@ -123,6 +127,9 @@ def main(argv=None):
     ap.add_argument("--history-search", action="append", default=[], metavar="JSON",
                     help="search options run on the first history map size beside the "
                          "default, e.g. '{\"search_cells\": 16}' (repeatable)")
+    ap.add_argument("--history-options", default=None, metavar="JSON",
+                    help="search options of every history map row instead of the default "
+                         "search, e.g. '{\"search_cells\": 16}'")
     args = ap.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     warnings.simplefilter("ignore")
@@ -137,7 +144,8 @@ def main(argv=None):
     hist_sizes = [int(x) for x in str(args.history_fit).split(",") if x.strip()]
     if hist_sizes:
         fit_rows(make_history_map(max(hist_sizes), 200), hist_sizes, 0, "history",
-                 args.repeats, [json.loads(s) for s in args.history_search])
+                 args.repeats, [json.loads(s) for s in args.history_search],
+                 json.loads(args.history_options) if args.history_options else None)
 
     print("\n| relaxed sweep points | precision | cold [s] | warm [s] | curves/s |\n"
           "| --- | --- | --- | --- | --- |", flush=True)

@@ -179,6 +179,9 @@ class ContactPoint:
       in the data), `trend_error` [N] its standard error and `trend_noise` [N] the free
       force's scatter about the line (both nan when no free force was found); see the
       ``baseline_trend`` step of :func:`preprocess`.
+    - `trend_slope` [N/s]: that line's slope in time, and `trend_slope_error` [N/s] its
+      standard error (nan when no free force was found): what a fitted force drift
+      (``force_drift`` of :func:`fitting.fit`) should find where the trend is a baseline.
     """
 
     index: int
@@ -196,6 +199,8 @@ class ContactPoint:
     trend: float = 0.0
     trend_error: float = math.nan
     trend_noise: float = math.nan
+    trend_slope: float = math.nan
+    trend_slope_error: float = math.nan
 
     def baseline_force(self, time) -> np.ndarray:
         """The subtracted baseline [N] at the given times [s] (array like ``time``)."""

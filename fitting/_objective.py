@@ -54,7 +54,7 @@ import jaxcontact as jc
 from jaxcontact._solvers import float64_scope
 
 from ._prepare import CurveBatch
-from ._spec import ModelSpec, build_rheology, offsets, work_of_adhesion
+from ._spec import ModelSpec, build_rheology, force_baseline, offsets, work_of_adhesion
 
 __all__ = ["predict", "effective_force", "residuals", "residuals_and_model", "ModelAt",
            "jacobian_fn", "internal_jacobian", "model_solution_at"]
@@ -109,10 +109,11 @@ def residuals(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec) -> Float
 def residuals_and_model(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec):
     r""":func:`residuals` and, from the same evaluation, what a fit reports of the model
     (:class:`ModelAt`): the model force at the sample times and the force as fitted
-    ($F^\mathrm{eff}$), both with the force offset [N], and the contact radius [m], each
-    of shape `(C, n)` like ``data.force``."""
+    ($F^\mathrm{eff}$), both with the fitted baseline [N] (the force offset and drift,
+    :func:`fitting._spec.force_baseline`), and the contact radius [m], each of shape
+    `(C, n)` like ``data.force``."""
     sol = predict(spec, p, data)
-    _, f0 = offsets(spec, p)
+    f0 = force_baseline(spec, p, data.ts)
     fitted = effective_force(sol, data) + f0
     r = jnp.sqrt(data.weight) * (fitted - data.force) / data.noise
     r = r.ravel()

@@ -37,7 +37,8 @@ the simpler one it contains. ``rheology="auto"`` fits standard, ``prony:2`` and
 
 Contact point: with ``contact_point="fit"`` (default for curves whose contact point was
 detected by a loader) the indentation offset $\delta$ [m] is a fitted parameter, started
-at the detection ($\delta = 0$); ``force_offset=True`` adds a force offset $F_0$ [N].
+at the detection ($\delta = 0$); ``force_offset=True`` adds a force offset $F_0$ [N],
+``force_drift=True`` a line $F_0 + s\,t$ (drift $s$ [N/s], started at 0 in every start).
 
 One pipeline: :func:`fit` and :func:`fitting.fit_each` both run :func:`identify` (their
 options one checked :class:`fitting.FitOptions`). :func:`fit` is its case of one problem
@@ -529,7 +530,7 @@ def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
     profile = o.probe
     spec = make_spec(o.model, rheology, compliant=o.spring_constant is not None,
                      cells=o.cells, contact_offset=contact_point == "fit",
-                     force_offset=o.force_offset)
+                     force_offset=o.force_offset, force_drift=o.force_drift)
     info = parameter_info(spec)
     names = [n for n, _, _ in info]
     curves = select_fit_segments(curves, o.segments)
@@ -551,7 +552,9 @@ def _problem(curves, options: FitOptions, *, rheology: str, contact_point: str,
     bnds.update(normalise_names(o.bounds, names, "bounds"))
     param = make_parameterisation(info, guess, fixed=fixed, bounds=bnds,
                                   scales={"contact_offset": scales.depth,
-                                          "force_offset": scales.force_range}, host=True)
+                                          "force_offset": scales.force_range,
+                                          "force_drift": scales.force_range / scales.duration},
+                                  host=True)
     starts = np.empty((o.n_starts + len(nested), len(names)))
     starts[0] = [guess[n] for n in names]
     if o.n_starts > 1:

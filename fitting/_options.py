@@ -219,6 +219,16 @@ class FitOptions(_Options):
       of "detect"), or `None` (default): "fit" when a loader detected a curve's contact
       point, else as it is (:data:`fitting._prepare.CONTACT_POINT`).
     - `force_offset`: also fit a force offset $F_0$ [N] (a baseline error). Default False.
+    - `force_drift`: also fit a force drift $s$ [N/s]: the model force plus the line
+      $F_0 + s\,t$ ($t$ from the first fitted sample; implies `force_offset`), so that the
+      data, not the preprocessing, decide how much of a trend in the force is baseline (the
+      free approach and the free retract carry it: the history model, and the relaxed
+      model's retract after the jump-off). Default False. Where the baseline was fitted
+      constant and the free force rises (the `baseline_trend` flag), this is the fit that
+      answers the flag; compare its $\chi^2$ with the fit without (the same preprocessing,
+      so the same noise; AIC/BIC of both results). A drift that is not the free force's
+      own slope before contact takes up a misfit of the model instead (flag
+      ``drift_not_baseline``, :func:`fitting._quality.drift_not_baseline`).
     - `n_starts`: starts of the global search, an integer >= 1 (default
       :data:`DEFAULT_STARTS`; `None` is the default).
     - `screen`: screened points of the global search, 0 or an integer >= `n_starts`
@@ -283,6 +293,7 @@ class FitOptions(_Options):
     bounds: Mapping[str, tuple[float, float]] | None = None
     contact_point: str | None = None
     force_offset: bool = False
+    force_drift: bool = False
     n_starts: int = DEFAULT_STARTS
     screen: int | None = None
     max_samples: int | None = None
@@ -359,10 +370,13 @@ class FitOptions(_Options):
                                  f"{plain(self.spring_constant)}")
             put("spring_constant", float(ks[0]) if np.ndim(self.spring_constant) == 0
                 else tuple(float(k) for k in ks))
-        if not isinstance(self.force_offset, bool | np.bool_):
-            raise ValueError(f"force_offset must be True or False; got "
-                             f"{plain(self.force_offset)}")
-        put("force_offset", bool(self.force_offset))
+        for name in ("force_offset", "force_drift"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise ValueError(f"{name} must be True or False; got "
+                                 f"{plain(getattr(self, name))}")
+        # a drift is a line: its offset is fitted with it
+        put("force_offset", bool(self.force_offset) or bool(self.force_drift))
+        put("force_drift", bool(self.force_drift))
         for name in ("initial", "fixed", "bounds"):
             put(name, _mapping(name, getattr(self, name)))
         if self.rheology != "auto":  # the model, rheology, loading and grid (named errors)

@@ -110,7 +110,7 @@ from jaxcontact._validate import plain
 from ._caller import warn_at_caller
 from ._objective import predict, residuals
 from ._result import FitResult
-from ._spec import canonical_name, offsets
+from ._spec import canonical_name, force_baseline
 
 __all__ = ["sample", "PosteriorResult", "PosteriorWarning", "DEFAULT_NOISE_PRIOR",
            "DEFAULT_TARGET_ACCEPT",
@@ -815,13 +815,13 @@ def _continue_chains(ctx, states, *, warmup, draws, target_accept, max_tree_dept
 
 @jax.jit
 def _model_forces(spec, param, us, data):
-    """The model force at the sample times (force offset included) for every row of the
+    """The model force at the sample times (fitted baseline included) for every row of the
     internal coordinates `us` `(draws, p)`, `(draws, curves, samples)`."""
 
     def one(u):
         p = param.to_natural(u)
         sol = predict(spec, p, data)
-        _, f0 = offsets(spec, p)
+        f0 = force_baseline(spec, p, data.ts)
         return jnp.where(jnp.isfinite(sol.force), sol.force, jnp.nan) + f0
 
     return jax.lax.map(one, us)

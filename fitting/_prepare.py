@@ -29,7 +29,9 @@ Curves of different lengths are padded to a common length by repeating the last 
 
 Noise
 -----
-$\sigma$ of a curve: the baseline noise found by the loader when there is one, else a
+$\sigma$ of a curve: the baseline noise found by the loader when there is one (with a fitted
+force drift, ``force_drift``, the free force's scatter about its straight line:
+:func:`curve_noise`), else a
 robust estimate from the data ($1.4826\,\mathrm{median}|\Delta^2 F|/\sqrt 6$), floored at
 $10^{-6}$ of the force range (noiseless data).
 
@@ -214,6 +216,20 @@ class CurveBatch(eqx.Module):
     def n_measured(self) -> int:
         """Number of measured samples the kept ones stand for (all curves)."""
         return int(round(float(np.sum(np.asarray(self.weight)))))
+
+
+def curve_noise(curve: Curve, spec) -> float | None:
+    """The noise the preprocessing found for `curve` [N] (`None`: none found): the free
+    force's scatter about its baseline (``ContactPoint.noise``), or, for a fit with a
+    fitted force drift (``spec.force_drift``), its scatter about its straight line
+    (``ContactPoint.trend_noise``: what is left once a line is fitted; a constant baseline's
+    scatter counts the trend as noise)."""
+    cp = curve.contact
+    if cp is None:
+        return None
+    if spec.force_drift and math.isfinite(cp.trend_noise) and cp.trend_noise > 0:
+        return float(cp.trend_noise)
+    return cp.noise
 
 
 def noise_level(force: np.ndarray, baseline_noise: float | None) -> float:
@@ -437,7 +453,7 @@ def prepare_curves(
         if len(idx) < 2:
             raise ValueError(f"curve {n} ({c.source or 'no source'}): fewer than 2 samples "
                              f"in the segments the {model} model uses")
-        noise = c.contact.noise if c.contact is not None else None
+        noise = curve_noise(c, spec)
         # the retract samples (the relaxed model's are all retract)
         ret = None if model == "relaxed" else seg == retract
         f_ret = f_all if ret is None else (f_all[ret] if ret.any() else None)

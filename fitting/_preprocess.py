@@ -245,7 +245,8 @@ def preprocess(
         baseline_region=st.region,
         retract_offset=st.retract_offset if baseline is not None else 0.0,
         retract_time=st.retract_time, trend=st.trend, trend_error=st.trend_error,
-        trend_noise=st.trend_noise,
+        trend_noise=st.trend_noise, trend_slope=st.trend_slope,
+        trend_slope_error=st.trend_slope_error,
     )
     return dataclasses.replace(
         curve, displacement=st.tip - st.p_c, force=st.force, spring_constant=k, contact=cp,
@@ -266,7 +267,8 @@ class Preprocessing:
     `scale` [N] (largest baselined approach force), `sig` [N] (the noise, at least
     1e-12 of the scale); `index` (contact index on the approach); `trend`, `trend_error`,
     `trend_noise` [N] (the free force's straight line: its rise to the end of the approach,
-    that rise's standard error, the scatter about the line); `retract_offset` [N]
+    that rise's standard error, the scatter about the line), `trend_slope`,
+    `trend_slope_error` [N/s] (its slope and that slope's error); `retract_offset` [N]
     from `retract_time` [s] on; `baselined` [N] (force less the baseline, for the tip
     position and the detection), `force` [N] (the output force), `tip` [m] (tip position
     toward the sample); `p_c` [m] and `contact_index` (sample index) of the contact.
@@ -296,6 +298,8 @@ class Preprocessing:
     trend: float = 0.0
     trend_noise: float = math.nan
     trend_error: float = math.nan
+    trend_slope: float = math.nan
+    trend_slope_error: float = math.nan
     baselined: np.ndarray | None = None
     force: np.ndarray | None = None
     tip: np.ndarray | None = None
@@ -455,7 +459,9 @@ def _baseline_trend(st: Preprocessing) -> None:
     tm = float(np.mean(t))
     reach = float(st.curve.time[st.approach[-1]]) - tm
     st.trend = slope * reach
-    st.trend_error = st.trend_noise * reach / math.sqrt(float(np.sum((t - tm) ** 2)))
+    st.trend_slope = slope
+    st.trend_slope_error = st.trend_noise / math.sqrt(float(np.sum((t - tm) ** 2)))
+    st.trend_error = st.trend_slope_error * reach
 
 
 @step("tip_position")

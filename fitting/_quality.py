@@ -52,7 +52,16 @@ Flags (:data:`FLAGS`; each with a message naming the numbers):
   $\sqrt{1 + (A/\sigma)^2/12}$ for a rise $A$ over the free force itself and scatter
   $\sigma$: the reduced $\chi^2$ follows it), can put the detected contact point on a
   bump of the baseline, and continues into the contact as a force the model does not
-  have; the message gives the trend and the remedy (a linear baseline, for a line).
+  have; the message gives the trend and the remedies (a fitted drift,
+  ``force_drift=True``, or a linear baseline, for a line). Not raised for a fit with a
+  fitted drift.
+- ``drift_not_baseline``: a fit with a fitted force drift (``force_drift=True``) whose
+  drift differs from the free force's own slope before contact (``ContactPoint.trend_slope``,
+  less the slope the baseline removed) by at least :data:`TREND_SIGMA` standard errors of
+  the difference and by at least one noise σ over the fitted duration
+  (:func:`drift_not_baseline`): the line then takes up a misfit of the model in contact (a
+  relaxation or an adhesion the model does not have), not a baseline; its lower χ² does
+  not make the values right, and they depend on it.
 - ``not_converged``: the best start did not meet the tolerance; :func:`convergence`
   gives the reason (the step limit, or a stop without progress) and what to try.
 - ``outside_jkr_limit``: Tabor's parameter of the fitted contact (:func:`tabor_entry`),
@@ -98,7 +107,7 @@ from ._uncertainty import delta_method, derived_quantities
 __all__ = ["INADEQUATE_CHI2", "POOR_R2", "FLAGS", "SegmentQuality", "r_squared",
            "r_squared_rows", "segment_quality", "segment_quality_rows", "contact_outside",
            "force_after_detachment", "AFTER_DETACHMENT_SAMPLES", "AFTER_DETACHMENT_SIGMA",
-           "AFTER_DETACHMENT_SHARE", "baseline_trend", "TREND_SIGMA",
+           "AFTER_DETACHMENT_SHARE", "baseline_trend", "TREND_SIGMA", "drift_not_baseline",
            "convergence", "check_contact_signal",
            "assess", "warning_kinds", "warn_summary", "tabor_entry", "TABOR_JKR_MIN"]
 
@@ -114,7 +123,8 @@ SIGNAL_RUN = 5
 
 #: The flags of a fit (see the module docstring).
 FLAGS = ("model_inadequate", "segment_not_described", "contact_outside_data",
-         "force_after_detachment", "baseline_trend", "not_converged", "outside_jkr_limit")
+         "force_after_detachment", "baseline_trend", "drift_not_baseline", "not_converged",
+         "outside_jkr_limit")
 
 #: Tabor's parameter below which a fit is flagged ``outside_jkr_limit``. Johnson and
 #: Greenwood's adhesion map (J. Colloid Interface Sci. 192, 326 (1997)) puts the JKR zone at
@@ -141,6 +151,11 @@ AFTER_DETACHMENT_SHARE = 0.01
 TREND_SIGMA = 5.0
 
 
+def _curve_label(n: int, curve) -> str:
+    """How a message names curve `n` of a fit: ``curve n (source)``."""
+    return f"curve {n}" + (f" ({curve.source})" if curve.source else "")
+
+
 def baseline_trend(curves) -> list[str]:
     """One message per curve of `curves` (preprocessed :class:`fitting.Curve`) with a
     constant baseline whose free force's straight line in time rises or falls, by the
@@ -154,7 +169,7 @@ def baseline_trend(curves) -> list[str]:
         if cp is None or cp.baseline != "constant" or not math.isfinite(cp.trend_noise) \
                 or abs(cp.trend) < TREND_SIGMA * max(cp.trend_noise, cp.trend_error):
             continue
-        label = f"curve {n}" + (f" ({c.source})" if c.source else "")
+        label = _curve_label(n, c)
         msgs.append(
             f"{label}: the free force before contact ({cp.baseline_region}) has a trend "
             f"in time that {'rises' if cp.trend > 0 else 'falls'} by {abs(cp.trend):.3g} N "
@@ -166,10 +181,52 @@ def baseline_trend(curves) -> list[str]:
             "reduced chi2 follow it, the detected contact point may lie on a bump of the "
             "baseline, and the trend continues into the contact as a force the model does "
             "not have, so the fitted values can depend on it (the work of adhesion most): "
-            "refit with baseline='linear' (command line: --baseline linear) and compare "
-            "the two fits in one noise (each reduced chi2 as printed is against its own "
-            "noise estimate: multiply it by (that noise / "
+            "refit with force_drift=True (command line: --force-drift), where the data "
+            "decide the line inside the fit and its chi2 compares with this one directly "
+            "(the same noise), or with baseline='linear' (command line: --baseline linear), "
+            "whose fit compares in one noise only (each reduced chi2 as printed is against "
+            "its own noise estimate: multiply it by (that noise / "
             f"{cp.trend_noise:.3g} N)^2); a wave no baseline here removes")
+    return msgs
+
+
+def drift_not_baseline(result) -> list[str]:
+    r"""One message per curve of a fit with a fitted force drift (``force_drift``) whose
+    drift $s$ differs from the free force's own slope before contact, $s_f$
+    (``ContactPoint.trend_slope`` less the baseline's ``force_slope``: the slope left in the
+    fitted data), by at least :data:`TREND_SIGMA` times the standard error of the
+    difference, $\sqrt{\sigma_s^2 + \sigma_{s_f}^2}$, and by at least the curve's noise
+    over the fitted duration $T$, $|s - s_f|\,T \ge \sigma$."""
+    if not result.spec.force_drift or "force_drift" not in result.names:
+        return []
+    j = result.names.index("force_drift")
+    s, se = float(result.values[j]), float(result.stderr[j])
+    data = result.data
+    ts, valid = np.asarray(data.ts), np.asarray(data.valid) > 0
+    msgs = []
+    for n, c in enumerate(result.curves):
+        cp = c.contact
+        if cp is None or not (math.isfinite(cp.trend_slope)
+                              and math.isfinite(cp.trend_slope_error)):
+            continue
+        free = cp.trend_slope - cp.force_slope
+        gap = s - free
+        error = math.sqrt((se if math.isfinite(se) else 0.0) ** 2 + cp.trend_slope_error ** 2)
+        span = float(np.ptp(ts[n][valid[n]])) if valid[n].any() else 0.0
+        sigma = float(np.asarray(data.sigma)[n])
+        if abs(gap) < TREND_SIGMA * error or abs(gap) * span < sigma:
+            continue
+        label = _curve_label(n, c)
+        msgs.append(
+            f"{label}: the fitted force drift {s:.3g} +/- {se:.2g} N/s is not the free force's "
+            f"own slope before contact ({free:.3g} +/- {cp.trend_slope_error:.2g} N/s): "
+            f"{abs(gap) / error:.1f} standard errors apart, {abs(gap) * span / sigma:.3g} "
+            f"noise sigma over the fitted {span:.3g} s; the line takes up a misfit of the "
+            "model in contact (a relaxation or an adhesion the model does not have), not a "
+            "baseline drift, and the fitted values depend on it: its lower chi2 does not "
+            "make them right; compare with the fit without the drift, and where the trend "
+            "before contact is a baseline, baseline='linear' (--baseline linear) removes "
+            "that line itself")
     return msgs
 
 
@@ -487,9 +544,13 @@ def assess(result, *, max_steps: int | None = None, evaluated=None,
                                float(result["contact_offset"]))
         if msgs:
             flags["contact_outside_data"] = "; ".join(msgs)
-    msgs = baseline_trend(result.curves)
+    # a fit with its own drift has answered the trend (`FitOptions.force_drift`)
+    msgs = [] if result.spec.force_drift else baseline_trend(result.curves)
     if msgs:
         flags["baseline_trend"] = "; ".join(msgs)
+    msgs = drift_not_baseline(result)
+    if msgs:
+        flags["drift_not_baseline"] = "; ".join(msgs)
     if result.model_contact_radius is not None:
         msgs = force_after_detachment(data.ts, data.force, result.model_force, data.noise,
                                       data.weight, data.valid, data.segment,

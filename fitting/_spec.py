@@ -221,7 +221,9 @@ class ModelSpec(eqx.Module):
     for the standard model, 0 for the elastic one), `compliant`
     (history model under :class:`jaxcontact.CompliantLoading`), `cells` (foundation grid
     cells of the history model), `contact_offset` (fit the indentation offset $\\delta$),
-    `force_offset` (fit the force offset $F_0$).
+    `force_offset` (fit the force offset $F_0$), `force_drift` (fit a force drift $s$ as
+    well: the model force plus the line $F_0 + s t$, $t$ from the first fitted sample;
+    implies `force_offset`).
     """
 
     model: str = eqx.field(static=True)
@@ -231,23 +233,26 @@ class ModelSpec(eqx.Module):
     cells: int = eqx.field(static=True)
     contact_offset: bool = eqx.field(static=True, default=False)
     force_offset: bool = eqx.field(static=True, default=False)
+    force_drift: bool = eqx.field(static=True, default=False)
 
 
 def make_spec(model: str = "relaxed", rheology: str = "standard", *,
               compliant: bool = False, cells: int = 32, contact_offset: bool = False,
-              force_offset: bool = False) -> ModelSpec:
+              force_offset: bool = False, force_drift: bool = False) -> ModelSpec:
     """Parse and check the model choice (`rheology` is "standard", "prony:N" with N in
     [1, 8], or "elastic"; see :data:`RHEOLOGIES`). One object per choice (made once: every
     curve of a map shares it)."""
     try:
-        return _make_spec(model, rheology, compliant, cells, contact_offset, force_offset)
+        return _make_spec(model, rheology, compliant, cells, contact_offset, force_offset,
+                          force_drift)
     except TypeError:  # unhashable arguments: checked (and refused) uncached
         return _make_spec.__wrapped__(model, rheology, compliant, cells, contact_offset,
-                                      force_offset)
+                                      force_offset, force_drift)
 
 
 @functools.lru_cache(maxsize=64)
-def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset) -> ModelSpec:
+def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset,
+               force_drift=False) -> ModelSpec:
     if model not in ("relaxed", "history"):
         raise ValueError(f"model must be 'relaxed' or 'history'; got {model!r}")
     name, colon, arg = rheology.partition(":") if isinstance(rheology, str) else ("", "", "")
@@ -273,7 +278,8 @@ def _make_spec(model, rheology, compliant, cells, contact_offset, force_offset) 
         raise ValueError(f"cells must be an integer >= 2; got {cells!r}")
     return ModelSpec(model=model, rheology=name, arms=arms, compliant=bool(compliant),
                      cells=int(cells), contact_offset=bool(contact_offset),
-                     force_offset=bool(force_offset))
+                     force_offset=bool(force_offset) or bool(force_drift),
+                     force_drift=bool(force_drift))
 
 
 def rheology_kind(spec: ModelSpec) -> RheologyKind:
@@ -296,7 +302,7 @@ def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
     """(short name, unit, kind) of every parameter, in vector order.
 
     Kinds: "modulus", "viscosity", "time", "adhesion" (all positive, fitted in logs),
-    "offset_length", "offset_force" (any sign, fitted linearly).
+    "offset_length", "offset_force", "offset_force_rate" (any sign, fitted linearly).
     """
     return list(_parameter_info(spec))
 
@@ -309,6 +315,8 @@ def _parameter_info(spec: ModelSpec) -> tuple:
         out.append(_info("contact_offset"))
     if spec.force_offset:
         out.append(_info("force_offset"))
+    if spec.force_drift:
+        out.append(_info("force_drift"))
     return tuple(out)
 
 
@@ -328,6 +336,18 @@ def offsets(spec: ModelSpec, p: Float[Array, " p"]):
     delta = p[k] if spec.contact_offset else jnp.zeros((), p.dtype)
     f0 = p[k + int(spec.contact_offset)] if spec.force_offset else jnp.zeros((), p.dtype)
     return delta, f0
+
+
+def force_baseline(spec: ModelSpec, p: Float[Array, " p"], ts):
+    r"""The fitted force baseline [N] added to the model force at the times `ts` [s] (the
+    batch's, from each curve's first fitted sample): $F_0 + s\,t$, with the force offset
+    $F_0$ and the drift $s$ [N/s] of natural parameters `p` (0 when not fitted); the one
+    place where the fits add them."""
+    _, f0 = offsets(spec, p)
+    if not spec.force_drift:
+        return f0
+    k = n_material(spec) + 1 + int(spec.contact_offset) + int(spec.force_offset)
+    return f0 + p[k] * ts
 
 
 def canonical_name(name: str, names: Sequence[str]) -> str:

@@ -31,7 +31,8 @@ $G_\infty \leftrightarrow G_k$ to its step limit, ``benchmarks/results/prony_con
 a nested fit widens it to contain the simpler model's relaxation times, see
 :func:`nested_starts`), $\Delta\gamma$ in
 $[10^{-6}, 10^{6}]$ times its estimate, the contact offset in $[-d_\max, d_\max/2]$, the
-force offset within ± the force range. A parameter the data push to a bound is reported
+force offset within ± the force range, the force drift within ± twice the force range over
+the curves' duration. A parameter the data push to a bound is reported
 at that bound (no standard error).
 
 Starts (:func:`search_starts`)
@@ -41,7 +42,8 @@ seed: the same data give the same starts) over physically bounded ranges: $G_\in
 over $\pm 2$ decades around $G_H$, the glass-to-relaxed ratio $G_g/G_\infty$ in
 $[1.02, 100]$, relaxation times from $\tau_\min$ to the duration, $\Delta\gamma$ over 3
 decades around its estimate, the contact offset within $\pm d_\max/4$ of the detection,
-the force offset within ±5 % of the force range. Start 0 is the data-based guess
+the force offset within ±5 % of the force range, the force drift 0 (a linear nuisance the
+steps find at once). Start 0 is the data-based guess
 (:func:`initial_guess`) with the user's initial values.
 
 Local rounds (:func:`local_starts`): after the global search, further rounds of as many
@@ -227,6 +229,8 @@ def from_physical(spec: ModelSpec, g_inf: float, g_glass: float, taus, weights,
         out["contact_offset"] = delta
     if spec.force_offset:
         out["force_offset"] = f0
+    if spec.force_drift:  # a linear nuisance: every start at no drift
+        out["force_drift"] = 0.0
     return out
 
 
@@ -259,6 +263,8 @@ def default_bounds(spec: ModelSpec, s: DataScales) -> dict[str, tuple[float, flo
             out[name] = (1e-6 * s.work_of_adhesion, 1e6 * s.work_of_adhesion)
         elif kind == "offset_length":
             out[name] = (-s.depth, 0.5 * s.depth)
+        elif kind == "offset_force_rate":  # at most twice the force range over the curve
+            out[name] = (-2.0 * s.force_range / s.duration, 2.0 * s.force_range / s.duration)
         else:
             out[name] = (-s.force_range, s.force_range)
     return out
@@ -495,17 +501,17 @@ def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
         order = np.argsort(new_t, kind="stable")
         q = from_relaxation(g_inf, [new_g[j] for j in order], [new_t[j] for j in order])
         q["work_of_adhesion"] = work
-        for extra in ("contact_offset", "force_offset"):
+        for extra in ("contact_offset", "force_offset", "force_drift"):
             if extra in p:
                 q[extra] = p[extra]
-        if spec.contact_offset:
-            q.setdefault("contact_offset", 0.0)
-        if spec.force_offset:
-            q.setdefault("force_offset", 0.0)
+        for extra in ("contact_offset", "force_offset", "force_drift"):
+            if getattr(spec, extra):
+                q.setdefault(extra, 0.0)
         out.append(q)
     return out
 
 
 def n_search_dims(spec: ModelSpec) -> int:
     """Number of free directions of a search (for sizing the default number of starts)."""
-    return n_material(spec) + 1 + int(spec.contact_offset) + int(spec.force_offset)
+    return (n_material(spec) + 1 + int(spec.contact_offset) + int(spec.force_offset)
+            + int(spec.force_drift))

@@ -3,9 +3,11 @@ bounds, shared by `jaxcontact.sweep` (`_sweep/_parameters.py`), the fits (`fitti
 and the command line (`jaxcontact_cli._sweep`).
 
 Each `Parameter` has a `name` (as the sweep, the fits and the outputs spell it), a `unit`
-(SI, written one way: ``Pa``, ``Pa s``, ``s``, ``J/m^2``, ``m``, ``m/s``, ``rad``, ``N``), a
+(SI, written one way: ``Pa``, ``Pa s``, ``s``, ``J/m^2``, ``m``, ``m/s``, ``rad``, ``N``,
+``N/s``), a
 `kind` (the physical dimension: ``modulus``, ``viscosity``, ``time``, ``adhesion``,
-``length``, ``velocity``, ``angle``, ``force``; the sweep scales by it, the fits choose
+``length``, ``velocity``, ``angle``, ``force``, ``force_rate``; the sweep scales by it, the
+fits choose
 their parameterisation and default bounds by it), its bounds (`allow_zero`: the lower
 bound is $\ge 0$ instead of $> 0$; `upper`: an open upper bound; `signed`: any sign, no
 lower bound — the fits' offsets) and a `long_name` (a sentence for the outputs' metadata).
@@ -28,7 +30,7 @@ from dataclasses import dataclass
 __all__ = ["Parameter", "PARAMETERS", "ARM_PATTERN", "parameter", "column_unit"]
 
 #: Units as written in column names (no ``/``, no spaces).
-_COLUMN_UNITS = {"Pa s": "Pa_s", "J/m^2": "J_m2", "m/s": "m_s"}
+_COLUMN_UNITS = {"Pa s": "Pa_s", "J/m^2": "J_m2", "m/s": "m_s", "N/s": "N_s"}
 
 
 def column_unit(unit: str) -> str:
@@ -86,6 +88,8 @@ PARAMETERS: dict[str, Parameter] = dict([
        "indentation)", signed=True),
     _p("force_offset", "N", "force", "force offset F0 (added to the model force)",
        signed=True),
+    _p("force_drift", "N/s", "force_rate", "force drift s (a line F0 + s t added to the model "
+       "force, t from the first fitted sample)", signed=True),
 ])
 
 ARM_PATTERN = re.compile(r"^(G|tau)_([1-9][0-9]*)$")

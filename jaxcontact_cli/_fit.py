@@ -145,6 +145,11 @@ def add_fit_arguments(parser):
                              "the whole curve")
     parser.add_argument("--force-offset", action="store_true",
                         help="also fit a force offset [N] (a baseline error)")
+    parser.add_argument("--force-drift", action="store_true",
+                        help="also fit a force drift [N/s]: the line F0 + s t added to the "
+                             "model (t from the first fitted sample; implies --force-offset), "
+                             "so the data decide how much of a trend is baseline (the answer "
+                             "to the baseline_trend flag)"),
     parser.add_argument("--baseline", choices=("constant", "linear", "none"), default=None,
                         help="force baseline removed before the fit: constant (the loader's "
                              "default), linear (drift in time), none")
@@ -427,7 +432,8 @@ def run(args) -> int:
                    bounds=bounds or None, initial=initial or None,
                    spring_constant=args.spring_constant, max_samples=args.max_samples,
                    cells=args.cells, progress=not args.quiet, force_offset=args.force_offset,
-                   indentation_range=indentation_range, segments=args.segments)
+                   force_drift=args.force_drift, indentation_range=indentation_range,
+                   segments=args.segments)
     if args.starts is not None:
         options["n_starts"] = args.starts
     if args.max_steps is not None:

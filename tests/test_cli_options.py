@@ -191,3 +191,13 @@ def test_summary_counts_free_parameters_as_the_start_line():
         curves=[curve], profile=jc.Parabola(10e-6), radius=10e-6)
     head = result.summary().splitlines()[0]
     assert "3 free parameter(s) (1 at a bound, not counted in AIC/BIC)" in head
+
+
+def test_force_drift_reaches_the_fit(monkeypatch, tmp_path):
+    # the command line's --force-drift is the library's force_drift (offset implied there)
+    seen = _captured_fit(monkeypatch, [IBW, "--radius", "40e-6", "--out", str(tmp_path / "o"),
+                                       "--force-drift"])
+    assert seen["force_drift"] is True
+    seen = _captured_fit(monkeypatch, [IBW, "--radius", "40e-6", "--out", str(tmp_path / "o")])
+    assert seen["force_drift"] is False
+    assert fitting.FitOptions(radius=1e-5, force_drift=True).force_offset is True

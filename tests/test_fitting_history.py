@@ -149,6 +149,67 @@ def test_surface_height_from_the_fitted_contact():
     assert np.isnan(outside.surface_height()).all()
 
 
+def test_force_drift_recovers_a_trend_the_constant_baseline_left(monkeypatch):
+    """A drift in the force (a line rising 15 noise sigma by the end of the approach, on
+    top of a baseline offset) under a constant baseline: the fit with `force_drift`
+    recovers the drift and every material parameter within 3.5 standard errors, and the
+    contact where the curve truly touched (the detection alone sits early: the rising
+    baseline crosses the threshold first), against the free force's scatter about its
+    line as the noise; without the drift the same curve is not described (chi2 > 100
+    times higher in that noise). The `baseline_trend` flag (its threshold lowered
+    here: this curve's free approach is short, so the trend's standard error keeps it
+    below the default) names the drift fit as the remedy and is not raised for it."""
+    monkeypatch.setattr(fitting._quality, "TREND_SIGMA", 1.0)
+    t, d, f, counts = _history(0.01, 4)
+    sigma = 0.01 * np.ptp(f)
+    drift = 15 * sigma / t[counts[0] - 1]
+    raw = _curve(t, d - DELTA, f + 3 * sigma + drift * t, counts)
+    curve = fitting.preprocess(raw, baseline="constant", contact_point="detect")
+    res = _fit(curve, contact_point="fit", max_samples=BUDGET, force_drift=True)
+    assert res.names[-2:] == ["force_offset", "force_drift"] and res.units[-1] == "N_s"
+    for k, v in dict(TRUE, force_drift=drift).items():
+        i = res.names.index(k)
+        assert res.status[i] == "ok", (k, res.status[i])
+        assert abs(res.values[i] - v) < 3.5 * res.stderr[i], (k, res.values[i], res.stderr[i])
+    j = res.names.index("contact_offset")
+    contact = curve.contact.tip_position - res.values[j]  # the truth: -DELTA
+    assert abs(contact + DELTA) < 3.5 * res.stderr[j]
+    assert abs(curve.contact.tip_position + DELTA) > 3.5 * res.stderr[j]
+    assert "baseline_trend" not in res.flags and "drift_not_baseline" not in res.flags
+    # the drift fit's noise: the free force's scatter about its line (the constant
+    # baseline's counts the trend); the two chi2 compared in that one noise
+    sigma, sigma_plain = curve.contact.trend_noise, curve.contact.noise
+    assert float(res.data.sigma[0]) == pytest.approx(sigma) and sigma < sigma_plain
+    plain = _fit(curve, contact_point="fit", max_samples=BUDGET)
+    assert float(plain.data.sigma[0]) == pytest.approx(sigma_plain)
+    assert plain.chi2 * (sigma_plain / sigma) ** 2 > 100 * res.chi2
+    assert "--force-drift" in plain.flags["baseline_trend"]
+    table = fitting._report.result_table(res)
+    assert table["force_drift"] is True and table["force_offset"] is True
+
+
+def test_a_drift_that_takes_up_a_force_in_contact_is_flagged():
+    """A force the model does not have, in contact only (a creep rising 80 noise sigma from
+    the contact to the end; nothing before it): the fitted drift takes it up and the fit
+    looks fine (reduced chi2 about 1), but the drift is not the free force's own slope
+    before contact (about 0), so the fit is flagged `drift_not_baseline`."""
+    t, d, f, counts = _history(0.01, 4)
+    sigma = 0.01 * np.ptp(f)
+    tc = t[np.argmax(d > 0)]
+    creep = 80 * sigma * np.clip((t - tc) / (t[-1] - tc), 0.0, None)
+    raw = _curve(t, d - DELTA, f + creep, counts)
+    curve = fitting.preprocess(raw, baseline="constant", contact_point="detect")
+    res = _fit(curve, contact_point="fit", max_samples=BUDGET, force_drift=True)
+    assert res.reduced_chi2 < 2.0  # the misfit is hidden in the line
+    cp = curve.contact
+    assert abs(cp.trend_slope) < 3 * cp.trend_slope_error  # no drift before contact
+    msg = res.flags["drift_not_baseline"]
+    assert msg.startswith("curve 0: the fitted force drift") and "not a baseline" in msg
+    j = res.names.index("force_drift")
+    assert abs(res.values[j] - cp.trend_slope) > 5 * np.hypot(res.stderr[j],
+                                                              cp.trend_slope_error)
+
+
 @pytest.mark.slow  # extended: `python -m pytest -m slow` (the default run's time)
 def test_subsampling_does_not_bias_the_history_fit(shifted, subsampled_fit):
     """All 900 samples against 150 kept ones (each standing for its neighbours): the same

@@ -85,6 +85,9 @@ def test_baseline_trend_measured_and_flagged():
         n = int(0.9 * cp.index)  # the free samples (the detection's last refit)
         t = c.time[:n]
         assert cp.trend == pytest.approx(tilt * (end - t.mean()), abs=4 * cp.trend_error)
+        # the slope itself, and its error (the rise's over the lever arm)
+        assert cp.trend_slope == pytest.approx(tilt, abs=4 * cp.trend_slope_error)
+        assert cp.trend_slope_error * (end - t.mean()) == pytest.approx(cp.trend_error)
         assert cp.trend_noise == pytest.approx(sigma, rel=0.1)
         free_rise = cp.trend * (t[-1] - t[0]) / (end - t.mean())
         assert cp.noise == pytest.approx(np.hypot(cp.trend_noise, free_rise / np.sqrt(12)),
@@ -93,6 +96,7 @@ def test_baseline_trend_measured_and_flagged():
         if tilt:  # 50 pN/s over ~1.5 s: ~15 sigma
             (msg,) = msgs
             assert msg.startswith("curve 0 (s.jpk-force)") and "--baseline linear" in msg
+            assert "--force-drift" in msg
             assert ("rises" if tilt > 0 else "falls") in msg
         else:
             assert msgs == []
@@ -102,6 +106,8 @@ def test_baseline_trend_measured_and_flagged():
               for s in range(40)]
     errors = np.array([cp.trend_error for cp in trends])
     assert np.std([cp.trend for cp in trends]) == pytest.approx(np.mean(errors), rel=0.3)
+    assert np.std([cp.trend_slope for cp in trends]) == pytest.approx(
+        np.mean([cp.trend_slope_error for cp in trends]), rel=0.3)
     assert np.mean([abs(cp.trend) >= 5 * cp.trend_error for cp in trends]) == 0
 
 

@@ -225,8 +225,11 @@ class FitOptions(_Options):
       free approach and the free retract carry it: the history model, and the relaxed
       model's retract after the jump-off). Default False. Where the baseline was fitted
       constant and the free force rises (the `baseline_trend` flag), this is the fit that
-      answers the flag; compare its $\chi^2$ with the fit without (the same preprocessing,
-      so the same noise; AIC/BIC of both results). A drift that is not the free force's
+      answers the flag. Its noise is the free force's scatter about its straight line
+      (``ContactPoint.trend_noise``: :func:`fitting._prepare.curve_noise`), the fit
+      without's the scatter about the baseline (``ContactPoint.noise``, which counts a trend
+      as noise): compare the two $\chi^2$ in one noise, the other's times
+      $(\sigma_\mathrm{noise}/\sigma_\mathrm{trend})^2$. A drift that is not the free force's
       own slope before contact takes up a misfit of the model instead (flag
       ``drift_not_baseline``, :func:`fitting._quality.drift_not_baseline`).
     - `n_starts`: starts of the global search, an integer >= 1 (default

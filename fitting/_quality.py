@@ -182,10 +182,10 @@ def baseline_trend(curves) -> list[str]:
             "baseline, and the trend continues into the contact as a force the model does "
             "not have, so the fitted values can depend on it (the work of adhesion most): "
             "refit with force_drift=True (command line: --force-drift), where the data "
-            "decide the line inside the fit and its chi2 compares with this one directly "
-            "(the same noise), or with baseline='linear' (command line: --baseline linear), "
-            "whose fit compares in one noise only (each reduced chi2 as printed is against "
-            "its own noise estimate: multiply it by (that noise / "
+            "decide the line inside the fit (flagged drift_not_baseline where it is not the "
+            "free force's own slope), or with baseline='linear' (command line: --baseline "
+            "linear); compare either with this fit in one noise (each reduced chi2 as "
+            "printed is against its own noise estimate: multiply it by (that noise / "
             f"{cp.trend_noise:.3g} N)^2); a wave no baseline here removes")
     return msgs
 

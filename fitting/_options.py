@@ -222,15 +222,18 @@ class FitOptions(_Options):
     - `force_drift`: also fit a force drift $s$ [N/s]: the model force plus the line
       $F_0 + s\,t$ ($t$ from the first fitted sample; implies `force_offset`), so that the
       data, not the preprocessing, decide how much of a trend in the force is baseline (the
-      free approach and the free retract carry it: the history model, and the relaxed
-      model's retract after the jump-off). Default False. Where the baseline was fitted
-      constant and the free force rises (the `baseline_trend` flag), this is the fit that
-      answers the flag. Its noise is the free force's scatter about its straight line
-      (``ContactPoint.trend_noise``: :func:`fitting._prepare.curve_noise`), the fit
-      without's the scatter about the baseline (``ContactPoint.noise``, which counts a trend
-      as noise): compare the two $\chi^2$ in one noise, the other's times
-      $(\sigma_\mathrm{noise}/\sigma_\mathrm{trend})^2$. A drift that is not the free force's
-      own slope before contact takes up a misfit of the model instead (flag
+      free approach and the free retract carry it). The history model only: the relaxed
+      model fits the retract in contact, where a line and the relaxation trade off (on 17
+      real curves the drift moved its values by tens of per cent on curves it did not
+      flag: ``benchmarks/results/force_drift_relaxed.md``). Default False. Where the
+      baseline was fitted constant and the free force rises (the `baseline_trend` flag),
+      this is the fit that answers the flag. Its noise is the free force's scatter about
+      its straight line (``ContactPoint.trend_noise``:
+      :func:`fitting._prepare.curve_noise`), the fit without's the scatter about the
+      baseline (``ContactPoint.noise``, which counts a trend as noise): compare the two
+      $\chi^2$ in one noise, the other's times
+      $(\sigma_\mathrm{noise}/\sigma_\mathrm{trend})^2$. A drift that is not the free
+      force's own slope before contact takes up a misfit of the model instead (flag
       ``drift_not_baseline``, :func:`fitting._quality.drift_not_baseline`).
     - `n_starts`: starts of the global search, an integer >= 1 (default
       :data:`DEFAULT_STARTS`; `None` is the default).
@@ -384,7 +387,9 @@ class FitOptions(_Options):
             put(name, _mapping(name, getattr(self, name)))
         if self.rheology != "auto":  # the model, rheology, loading and grid (named errors)
             make_spec(self.model, self.rheology, compliant=self.spring_constant is not None,
-                      cells=self.cells)
+                      cells=self.cells, force_drift=self.force_drift)
+        elif self.force_drift and self.model != "history":
+            make_spec(self.model, force_drift=True)  # the named error
         elif self.spring_constant is not None and self.model != "history":
             raise ValueError("a compliant loading system (spring_constant) needs "
                              "model='history'")

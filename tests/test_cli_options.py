@@ -193,11 +193,18 @@ def test_summary_counts_free_parameters_as_the_start_line():
     assert "3 free parameter(s) (1 at a bound, not counted in AIC/BIC)" in head
 
 
-def test_force_drift_reaches_the_fit(monkeypatch, tmp_path):
+def test_force_drift_reaches_the_fit(monkeypatch, tmp_path, capsys):
     # the command line's --force-drift is the library's force_drift (offset implied there)
     seen = _captured_fit(monkeypatch, [IBW, "--radius", "40e-6", "--out", str(tmp_path / "o"),
-                                       "--force-drift"])
+                                       "--model", "history", "--force-drift"])
     assert seen["force_drift"] is True
     seen = _captured_fit(monkeypatch, [IBW, "--radius", "40e-6", "--out", str(tmp_path / "o")])
     assert seen["force_drift"] is False
-    assert fitting.FitOptions(radius=1e-5, force_drift=True).force_offset is True
+    assert fitting.FitOptions(radius=1e-5, model="history", force_drift=True).force_offset
+    # with the relaxed model: a usage error naming the option, nothing written
+    monkeypatch.undo()
+    out = tmp_path / "relaxed"
+    assert main(["fit", IBW, "--radius", "40e-6", "--out", str(out), "--force-drift"]) == 2
+    err = capsys.readouterr().err
+    assert "force_drift needs model='history'" in err and "Traceback" not in err
+    assert not out.exists()

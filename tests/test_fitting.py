@@ -1085,27 +1085,13 @@ def test_solve_batch_calls_traced_once_after_its_only_trace(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
-def test_force_drift_columns_of_the_jacobian_in_closed_form(noisy):
-    """The fitted baseline F0 + s t (`force_drift`): the residuals' derivatives along F0 and
-    s are sqrt(w)/sigma and sqrt(w) t/sigma per sample (closed form: the line is added to
-    the model force), the material columns are those of the fit without the line, and at
-    s = F0 = 0 the residuals are the plain fit's."""
-    plain_spec = make_spec()
-    spec = make_spec(force_drift=True)
-    assert spec.force_offset  # a drift is a line: its offset comes with it
-    assert [n for n, _, _ in fitting.parameter_info(spec)][-2:] == ["force_offset",
-                                                                     "force_drift"]
-    assert fitting.parameter_info(spec)[-1] == ("force_drift", "N_s", "offset_force_rate")
-    data = prepare_curves(noisy, spec, radius=R)
-    p0 = jnp.array([TRUE[k] for k in NAMES])
-    p = jnp.concatenate([p0, jnp.array([2e-9, -3e-9])])  # F0 [N], s [N/s]
-    J = jax.jacfwd(lambda q: residuals(q, data, spec))(p)
-    J0 = jax.jacfwd(lambda q: residuals(q, data, plain_spec))(p0)
-    w = np.sqrt(np.asarray(data.weight)) / np.asarray(data.noise)
-    np.testing.assert_allclose(J[:, -2], w.ravel(), rtol=1e-12)
-    np.testing.assert_allclose(J[:, -1], (w * np.asarray(data.ts)).ravel(), rtol=1e-12)
-    np.testing.assert_allclose(J[:, :4], J0, rtol=1e-10, atol=1e-12 * np.abs(J0).max())
-    r0 = residuals(p0, data, plain_spec)
-    np.testing.assert_allclose(residuals(p.at[-2:].set(0.0), data, spec), r0, rtol=1e-14)
+
+def test_force_drift_needs_the_history_model():
+    # the relaxed model's retract cannot tell a line from the relaxation: refused, named
+    with pytest.raises(ValueError, match="force_drift needs model='history'"):
+        make_spec("relaxed", force_drift=True)
+    with pytest.raises(ValueError, match="force_drift needs model='history'"):
+        fitting.FitOptions(radius=R, force_drift=True)
     with pytest.raises(ValueError, match="force_drift must be True or False"):
-        fitting.FitOptions(radius=R, force_drift="yes")
+        fitting.FitOptions(radius=R, model="history", force_drift="yes")
+    assert fitting.FitOptions(radius=R, model="history", force_drift=True).force_offset

@@ -15,6 +15,7 @@ import json
 import pathlib
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -147,6 +148,30 @@ def test_surface_height_from_the_fitted_contact():
     # a fitted contact outside the data is no measured surface: no height
     outside = dataclasses.replace(res, flags=dict(res.flags, contact_outside_data="..."))
     assert np.isnan(outside.surface_height()).all()
+
+
+def test_force_drift_columns_of_the_jacobian_in_closed_form(shifted):
+    """The fitted baseline F0 + s t (`force_drift`): the residuals' derivatives along F0 and
+    s are sqrt(w)/sigma and sqrt(w) t/sigma per sample (closed form: the line is added to
+    the model force), the material columns are those of the fit without the line, and at
+    s = F0 = 0 the residuals are the plain fit's."""
+    plain_spec = fitting.make_spec("history", contact_offset=True)
+    spec = fitting.make_spec("history", contact_offset=True, force_drift=True)
+    assert spec.force_offset  # a drift is a line: its offset comes with it
+    assert [n for n, _, _ in fitting.parameter_info(spec)][-2:] == ["force_offset",
+                                                                     "force_drift"]
+    assert fitting.parameter_info(spec)[-1] == ("force_drift", "N_s", "offset_force_rate")
+    data = fitting.prepare_curves(shifted, spec, radius=R, max_samples=BUDGET)
+    p0 = jnp.array([TRUE["G0"], TRUE["G1"], TRUE["eta1"], TRUE["work_of_adhesion"], DELTA])
+    p = jnp.concatenate([p0, jnp.array([2e-9, -3e-9])])  # F0 [N], s [N/s]
+    J = jax.jacfwd(lambda q: residuals(q, data, spec))(p)
+    J0 = jax.jacfwd(lambda q: residuals(q, data, plain_spec))(p0)
+    w = np.sqrt(np.asarray(data.weight)) / np.asarray(data.noise)
+    np.testing.assert_allclose(J[:, -2], w.ravel(), rtol=1e-12)
+    np.testing.assert_allclose(J[:, -1], (w * np.asarray(data.ts)).ravel(), rtol=1e-12)
+    np.testing.assert_allclose(J[:, :5], J0, rtol=1e-10, atol=1e-12 * np.abs(J0).max())
+    r0 = residuals(p0, data, plain_spec)
+    np.testing.assert_allclose(residuals(p.at[-2:].set(0.0), data, spec), r0, rtol=1e-14)
 
 
 def test_force_drift_recovers_a_trend_the_constant_baseline_left(monkeypatch):

@@ -156,13 +156,19 @@ def _curve_label(n: int, curve) -> str:
     return f"curve {n}" + (f" ({curve.source})" if curve.source else "")
 
 
-def baseline_trend(curves) -> list[str]:
+def baseline_trend(curves, *, drift: bool = True) -> list[str]:
     """One message per curve of `curves` (preprocessed :class:`fitting.Curve`) with a
     constant baseline whose free force's straight line in time rises or falls, by the
     end of the approach, by at least :data:`TREND_SIGMA` times both the free force's
     scatter about the line and the rise's standard error (``ContactPoint.trend``,
     ``trend_noise``, ``trend_error``): what it is, what it does to the fit, and what to
-    try."""
+    try (with `drift`, a fitted force drift among the remedies: the history model's; the
+    relaxed model refuses it)."""
+    remedy = ("refit with force_drift=True (command line: --force-drift), where the data "
+              "decide the line inside the fit (flagged drift_not_baseline where it is not "
+              "the free force's own slope), or with baseline='linear' (command line: "
+              "--baseline linear); compare either" if drift else
+              "refit with baseline='linear' (command line: --baseline linear) and compare")
     msgs = []
     for n, c in enumerate(curves):
         cp = c.contact
@@ -181,11 +187,8 @@ def baseline_trend(curves) -> list[str]:
             "reduced chi2 follow it, the detected contact point may lie on a bump of the "
             "baseline, and the trend continues into the contact as a force the model does "
             "not have, so the fitted values can depend on it (the work of adhesion most): "
-            "refit with force_drift=True (command line: --force-drift), where the data "
-            "decide the line inside the fit (flagged drift_not_baseline where it is not the "
-            "free force's own slope), or with baseline='linear' (command line: --baseline "
-            "linear); compare either with this fit in one noise (each reduced chi2 as "
-            "printed is against its own noise estimate: multiply it by (that noise / "
+            f"{remedy} with this fit in one noise (each reduced chi2 as printed is against "
+            "its own noise estimate: multiply it by (that noise / "
             f"{cp.trend_noise:.3g} N)^2); a wave no baseline here removes")
     return msgs
 
@@ -545,7 +548,8 @@ def assess(result, *, max_steps: int | None = None, evaluated=None,
         if msgs:
             flags["contact_outside_data"] = "; ".join(msgs)
     # a fit with its own drift has answered the trend (`FitOptions.force_drift`)
-    msgs = [] if result.spec.force_drift else baseline_trend(result.curves)
+    msgs = [] if result.spec.force_drift else baseline_trend(
+        result.curves, drift=result.spec.model == "history")
     if msgs:
         flags["baseline_trend"] = "; ".join(msgs)
     msgs = drift_not_baseline(result)

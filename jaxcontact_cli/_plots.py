@@ -24,7 +24,7 @@ _FLAG_TEXT = {
     "force_after_detachment": "after the model's jump-off the measured force stays off the "
                               "model's (tethers? a retract offset?): see the warnings",
     "baseline_trend": "the free force before contact has a trend the constant baseline "
-                      "leaves in the data (try --force-drift): see the warnings",
+                      "leaves in the data: see the warnings for the remedies",
     "drift_not_baseline": "the fitted force drift is NOT the free force's own slope: it "
                           "takes up a misfit of the model in contact; see the warnings",
     "not_converged": "NOT CONVERGED: the best point found is shown",

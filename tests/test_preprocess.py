@@ -97,6 +97,9 @@ def test_baseline_trend_measured_and_flagged():
             (msg,) = msgs
             assert msg.startswith("curve 0 (s.jpk-force)") and "--baseline linear" in msg
             assert "--force-drift" in msg
+            # the relaxed model refuses a drift: not offered there
+            (other,) = baseline_trend([c.replace(contact=cp)], drift=False)
+            assert "--force-drift" not in other and "--baseline linear" in other
             assert ("rises" if tilt > 0 else "falls") in msg
         else:
             assert msgs == []

@@ -30,7 +30,7 @@ part history-cells16 ${LIMIT_HISTORY_CELLS:-150} python $D "${NONE[@]}" --histor
     --history-options '{"search_cells": 16}' --repeats 0
 part main-job ${LIMIT_MAIN:-100} python -m jaxcontact_cli fit \
     tests/data/oocyte-stress-relaxation-cell1-0008.jpk-force --profile sphere:40e-6 \
-    --model history --quiet --out /tmp/main-job  # its files stay there: $OUT keeps the logs
+    --model history --out /tmp/main-job  # its files stay there: $OUT keeps the logs
 part relaxed-map ${LIMIT_RELAXED:-120} python $D "${NONE[@]}" --fit-curves 4096,16384 \
     --baseline-workers 0 --repeats 0
 part sweeps ${LIMIT_SWEEPS:-70} python $D "${NONE[@]}" --sweep-max 10000000 --history 32768 \

@@ -1185,7 +1185,12 @@ def _finish(pb: _Problem, out: _Searched, options: FitOptions, pre: dict, *, sho
     k = int(sum(1 for i in param.free if not unc.status[i].startswith("at ")))
     n = data.n_measured
     chi2 = unc.chi2
-    ll = n * math.log(max(chi2, 1e-300) / n)
+    # the likelihood of a weighted chi2 counts Kish's effective samples, not the measured
+    # ones the kept samples stand for: a subsampled curve's chi2 differences are inflated by
+    # the weights (with n, BIC gave standard-model data a second arm:
+    # test_fitting_history.py::test_model_selection_on_a_subsampled_curve)
+    n_eff = max(data.n_effective, 1.0)
+    ll = n_eff * math.log(max(chi2, 1e-300) / n)
     curves, profile = pb.curves, options.probe  # as fitted: the chosen segments
     msgs = list(unc.warnings)
     msgs += _validity_warnings(spec, curves, pre["validity"])
@@ -1205,7 +1210,7 @@ def _finish(pb: _Problem, out: _Searched, options: FitOptions, pre: dict, *, sho
         correlation=unc.correlation, fixed=fixed_mask, chi2=chi2,
         reduced_chi2=unc.reduced_chi2, n_data=n, n_free=k,
         r_squared=quality["r_squared"], r_squared_contact=quality["r_squared_contact"],
-        aic=ll + 2 * k, bic=ll + k * math.log(n), converged=bool(ok_all[best]),
+        aic=ll + 2 * k, bic=ll + k * math.log(n_eff), converged=bool(ok_all[best]),
         start_losses=searched,
         spec=spec, data=data, curves=curves, profile=profile, radius=pre["radius"],
         model_at=(u, spec, param, data), model_force=model_force,

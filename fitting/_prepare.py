@@ -217,6 +217,17 @@ class CurveBatch(eqx.Module):
         """Number of measured samples the kept ones stand for (all curves)."""
         return int(round(float(np.sum(np.asarray(self.weight)))))
 
+    @property
+    def n_effective(self) -> float:
+        r"""Kish's effective number of samples, $(\sum_i w_i)^2 / \sum_i w_i^2$ over the kept
+        samples' weights: `n_measured` when every sample is kept, about the kept samples'
+        number when each stands for many. A weighted $\chi^2 = \sum_i w_i r_i^2$ varies as
+        much as a $\chi^2$ of that many samples, scaled by $\sum w^2/\sum w$: what model
+        selection must count (:class:`fitting.ModelChoice`)."""
+        w = np.asarray(self.weight, dtype=float).ravel()
+        s2 = float(np.sum(w * w))
+        return float(np.sum(w)) ** 2 / s2 if s2 > 0 else 0.0
+
 
 def curve_noise(curve: Curve, spec) -> float | None:
     """The noise the preprocessing found for `curve` [N] (`None`: none found): the free

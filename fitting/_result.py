@@ -16,8 +16,11 @@ __all__ = ["FitResult", "ModelChoice"]
 @dataclass
 class ModelChoice:
     """One candidate of ``rheology="auto"``: its name, $\\chi^2$, number of free parameters
-    `k`, samples `n`, AIC $= n\\ln(\\chi^2/n) + 2k$, BIC $= n\\ln(\\chi^2/n) + k\\ln n$ and
-    whether it was chosen (smallest BIC)."""
+    `k`, measured samples `n`, AIC $= n_e\\ln(\\chi^2/n) + 2k$, BIC $= n_e\\ln(\\chi^2/n) +
+    k\\ln n_e$ and whether it was chosen (smallest BIC). $n_e$ is Kish's effective number of
+    samples of the fit (:attr:`fitting.CurveBatch.n_effective`: $n$ when every sample is
+    kept, about the kept samples' number when a curve is subsampled, whose weighted
+    $\\chi^2$ differences are inflated by the weights)."""
 
     rheology: str
     chi2: float

@@ -150,6 +150,40 @@ def test_surface_height_from_the_fitted_contact():
     assert np.isnan(outside.surface_height()).all()
 
 
+def test_information_criteria_count_the_effective_samples(shifted, subsampled_fit):
+    """AIC and BIC of a subsampled fit count Kish's effective samples (`n_effective`:
+    (sum w)^2 / sum w^2 of the kept samples' weights), not the measured ones; without
+    subsampling that is the number of samples (the usual criteria)."""
+    res = subsampled_fit
+    w = np.asarray(res.data.weight).ravel()
+    n_eff = res.data.n_effective
+    assert n_eff == pytest.approx(w.sum() ** 2 / (w * w).sum())
+    assert n_eff < res.data.n_samples <= BUDGET < res.n_data == 900
+    ll = n_eff * np.log(res.chi2 / res.n_data)
+    assert res.bic == pytest.approx(ll + res.n_free * np.log(n_eff))
+    assert res.aic == pytest.approx(ll + 2 * res.n_free)
+    full = fitting.prepare_curves(shifted, res.spec, radius=R, max_samples=900)
+    assert full.n_effective == pytest.approx(900) == full.n_measured
+
+
+@pytest.mark.slow  # extended: `python -m pytest -m slow` (three history fits)
+def test_model_selection_on_a_subsampled_curve():
+    """`rheology="auto"` on a standard-model curve of 900 samples kept as 150 (each standing
+    for ~6): the weighted chi2 varies ~6 times more than a chi2 of 900 samples, so AIC/BIC
+    count Kish's effective samples (`CurveBatch.n_effective`, ~120); with the 900 measured
+    ones BIC gave this curve a second arm (chi2 939.6 -> 905.7, 34 for 2 parameters), with
+    all 900 samples kept it does not (the reference: 928.5 -> 925.8). Without subsampling
+    n_effective is the number of samples and the criteria are the usual ones."""
+    t, d, f, counts = _history(0.01, 4)
+    curve = fitting.preprocess(_curve(t, d, f, counts), baseline="constant",
+                               contact_point="detect")
+    res = _fit(curve, rheology="auto", max_samples=BUDGET)
+    assert [m.rheology for m in res.model_selection] == ["standard", "prony:2", "prony:3"]
+    assert res.rheology == "standard", [(m.rheology, m.chi2, m.bic)
+                                        for m in res.model_selection]
+    assert 0.6 * BUDGET < res.data.n_effective < BUDGET and res.n_data == 900
+
+
 def test_force_drift_columns_of_the_jacobian_in_closed_form(shifted):
     """The fitted baseline F0 + s t (`force_drift`): the residuals' derivatives along F0 and
     s are sqrt(w)/sigma and sqrt(w) t/sigma per sample (closed form: the line is added to

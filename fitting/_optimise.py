@@ -490,7 +490,8 @@ def fit(curves: Curve | Sequence[Curve], *, options: FitOptions | None = None,
     results = out.steps[0]
     if not auto:
         return results[-1]
-    choices = [ModelChoice(rheology=r.rheology, chi2=r.chi2, k=r.n_free, n=r.n_data,
+    choices = [ModelChoice(rheology=r.rheology, chi2=r.chi2,
+                           k=int(np.sum(~np.asarray(r.fixed, dtype=bool))), n=r.n_data,
                            aic=r.aic, bic=r.bic) for r in results]
     best = int(np.argmin([c.bic for c in choices]))
     choices[best].chosen = True
@@ -1191,6 +1192,11 @@ def _finish(pb: _Problem, out: _Searched, options: FitOptions, pre: dict, *, sho
     # test_fitting_history.py::test_model_selection_on_a_subsampled_curve)
     n_eff = max(data.n_effective, 1.0)
     ll = n_eff * math.log(max(chi2, 1e-300) / n)
+    # the criteria count the model's fitted parameters, those ending at a bound too: a richer
+    # model whose extra arm ends at a bound is the simpler one at the same chi2, not a
+    # cheaper model (sin-force-distance.ibw, auto: prony:2 with 3 parameters off their
+    # bounds had been chosen over the standard model's 4 at an equal chi2)
+    k_model = len(param.free)
     curves, profile = pb.curves, options.probe  # as fitted: the chosen segments
     msgs = list(unc.warnings)
     msgs += _validity_warnings(spec, curves, pre["validity"])
@@ -1210,7 +1216,8 @@ def _finish(pb: _Problem, out: _Searched, options: FitOptions, pre: dict, *, sho
         correlation=unc.correlation, fixed=fixed_mask, chi2=chi2,
         reduced_chi2=unc.reduced_chi2, n_data=n, n_free=k,
         r_squared=quality["r_squared"], r_squared_contact=quality["r_squared_contact"],
-        aic=ll + 2 * k, bic=ll + k * math.log(n_eff), converged=bool(ok_all[best]),
+        aic=ll + 2 * k_model, bic=ll + k_model * math.log(n_eff),
+        converged=bool(ok_all[best]),
         start_losses=searched,
         spec=spec, data=data, curves=curves, profile=profile, radius=pre["radius"],
         model_at=(u, spec, param, data), model_force=model_force,

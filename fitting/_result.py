@@ -15,8 +15,10 @@ __all__ = ["FitResult", "ModelChoice"]
 
 @dataclass
 class ModelChoice:
-    """One candidate of ``rheology="auto"``: its name, $\\chi^2$, number of free parameters
-    `k`, measured samples `n`, AIC $= n_e\\ln(\\chi^2/n) + 2k$, BIC $= n_e\\ln(\\chi^2/n) +
+    """One candidate of ``rheology="auto"``: its name, $\\chi^2$, number of fitted
+    parameters `k` (those ending at a bound included: a richer model whose extra arm ends
+    at a bound is the simpler one at the same $\\chi^2$, not a cheaper model), measured
+    samples `n`, AIC $= n_e\\ln(\\chi^2/n) + 2k$, BIC $= n_e\\ln(\\chi^2/n) +
     k\\ln n_e$ and whether it was chosen (smallest BIC). $n_e$ is Kish's effective number of
     samples of the fit (:attr:`fitting.CurveBatch.n_effective`: $n$ when every sample is
     kept, about the kept samples' number when a curve is subsampled, whose weighted

@@ -160,8 +160,9 @@ def test_information_criteria_count_the_effective_samples(shifted, subsampled_fi
     assert n_eff == pytest.approx(w.sum() ** 2 / (w * w).sum())
     assert n_eff < res.data.n_samples <= BUDGET < res.n_data == 900
     ll = n_eff * np.log(res.chi2 / res.n_data)
-    assert res.bic == pytest.approx(ll + res.n_free * np.log(n_eff))
-    assert res.aic == pytest.approx(ll + 2 * res.n_free)
+    k = int(np.sum(~np.asarray(res.fixed)))  # the fitted parameters, at a bound or not
+    assert res.bic == pytest.approx(ll + k * np.log(n_eff))
+    assert res.aic == pytest.approx(ll + 2 * k)
     full = fitting.prepare_curves(shifted, res.spec, radius=R, max_samples=900)
     assert full.n_effective == pytest.approx(900) == full.n_measured
 

@@ -11,7 +11,8 @@ program instead (``jax.export``: StableHLO, serialised with ``flatbuffers``), ke
 everything the trace depends on: the program's name and static options, the structure,
 shapes and dtypes of its arguments, the versions of jax and jaxlib, the source of the
 ``jaxcontact`` and ``fitting`` packages (a changed file is a new key: no stale program),
-the backend and its device kind, 64-bit mode and ``XLA_FLAGS``. A later process with the
+the backend and its device kind, 64-bit mode, ``XLA_FLAGS`` and whether branches
+no lane takes are skipped (``jaxcontact._sharding.LANE_BRANCHES``). A later process with the
 same key deserialises it (milliseconds) and JAX compiles it, or finds its executable in
 the persistent cache. The results are those of the traced program, to the bit (the same
 StableHLO; ``tests/test_fitting_each.py``).
@@ -33,6 +34,8 @@ import threading
 from collections.abc import Callable
 
 import jax
+
+from jaxcontact import _sharding
 
 __all__ = ["cached", "enable"]
 
@@ -81,7 +84,8 @@ def _key(name: str, treedef, leaves, static: dict) -> str:
     parts = [name, jax.__version__, jaxlib.__version__, _source_hash(), str(treedef),
              repr([str(jax.typeof(x)) for x in leaves]), repr(sorted(static.items())),
              jax.default_backend(), getattr(device, "device_kind", ""),
-             str(jax.config.jax_enable_x64), os.environ.get("XLA_FLAGS", "")]
+             str(jax.config.jax_enable_x64), os.environ.get("XLA_FLAGS", ""),
+             f"lane_branches={_sharding.LANE_BRANCHES}"]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
 
 

@@ -39,15 +39,38 @@ body into the caller's program instead of calling its own nested ``jit``, whose 
 rule fails the same way; a ``jnp.where`` with a bare Python scalar inside a scanned branch
 does too (``lax.select`` with an array of the same type is used there).
 
+**Branches under `vmap` that only run where some lane takes them.** Outside explicit
+mode, `switch` and `cond` run each branch inside a ``lax.cond`` whose predicate is "some lane
+of the batch takes this branch" (`any_lane`: a ``custom_vmap`` whose batching rule reduces
+the predicate over the vmapped axis, so that the result is not batched and the
+``lax.cond`` stays a conditional under every ``vmap`` above it), then select per lane as
+``vmap`` does. Every lane gets the value of its own branch, as with ``lax.switch``; only
+the work of branches that no lane takes is skipped. Unbatched, one branch runs. Why: the
+foundation model's step has three branches (pinned, advancing, receding front), and under
+``vmap`` ``lax.switch`` computes all three for every lane at every sample, while the lanes
+of a fit or a sweep mostly take the same one (the front advances on the approach and
+recedes on the lift); measured on the fitting's full-history objective, 32 lanes, one core
+(``benchmarks/results/fit_each.md``, "Branches that no lane takes"): its Jacobian 2.5×
+faster, the same values to round-off. ``JAXCONTACT_LANE_BRANCHES=0`` (read at import)
+restores ``lax.switch`` (a baseline for benchmarks).
+
 With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
 ``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).
 """
 
+import os
+
 import jax
 import jax.numpy as jnp
 from jax import lax
+from jax.custom_batching import custom_vmap
 
-__all__ = ["compiled", "cond", "on_mesh", "pick", "scan", "searchsorted", "switch", "while_loop"]
+__all__ = ["any_lane", "compiled", "cond", "on_mesh", "pick", "scan", "searchsorted", "switch",
+           "while_loop"]
+
+#: `switch` and `cond` skip the branches no lane takes (module docstring); ``0`` in the
+#: environment variable ``JAXCONTACT_LANE_BRANCHES`` at import: plain ``lax.switch``.
+LANE_BRANCHES = os.environ.get("JAXCONTACT_LANE_BRANCHES", "1") != "0"
 
 
 def _explicit_mesh() -> bool:
@@ -105,21 +128,49 @@ def scan(f, init, xs=None, length=None, *, tie=()):
 
 
 
+@custom_vmap
+def any_lane(flag):
+    """`flag` (a boolean array); under ``vmap``, whether it holds on any lane of the batch
+    (and of every batch above), not batched (module docstring). Not differentiable (a
+    boolean)."""
+    return flag
+
+
+@any_lane.def_vmap
+def _any_lane_rule(axis_size, in_batched, flag):
+    del axis_size
+    (batched,) = in_batched
+    return any_lane(jnp.any(flag, axis=0) if batched else flag), False
+
+
 def switch(index, branches, *operands):
-    """`jax.lax.switch` (same arguments, same result; `index` clamped to the branches as
-    there); under a mesh with explicit axes every branch is evaluated and the taken one
-    selected (module docstring)."""
-    if not _explicit_mesh():
-        return lax.switch(index, branches, *operands)
-    outs = [branch(*operands) for branch in branches]
+    """`jax.lax.switch` (same arguments, same result per lane; `index` clamped to the
+    branches as there). Under ``vmap`` a branch runs only where some lane takes it, then
+    each lane's own branch is selected; under a mesh with explicit axes every branch is
+    evaluated and the taken one selected (module docstring)."""
     which = jnp.clip(jnp.asarray(index, jnp.int32), 0, len(branches) - 1)
+    if not _explicit_mesh():
+        if not LANE_BRANCHES:
+            return lax.switch(which, branches, *operands)
+        outs = []
+        for k, branch in enumerate(branches):
+            shapes = jax.eval_shape(branch, *operands)
+
+            def skipped(*_, shapes=shapes):
+                return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+            taken = any_lane(lax.stop_gradient(which == k))
+            outs.append(lax.cond(taken, branch, skipped, *operands))
+    else:
+        outs = [branch(*operands) for branch in branches]
     return jax.tree.map(lambda *xs: lax.select_n(which, *xs), *outs)
 
 
 def cond(pred, true_fun, false_fun, *operands):
-    """`jax.lax.cond` (same arguments, same result); under a mesh with explicit axes both
+    """`jax.lax.cond` (same arguments, same result per lane), as `switch`: under ``vmap`` a
+    branch runs only where some lane takes it; under a mesh with explicit axes both
     branches are evaluated and the taken one selected (module docstring)."""
-    if not _explicit_mesh():
+    if not _explicit_mesh() and not LANE_BRANCHES:
         return lax.cond(pred, true_fun, false_fun, *operands)
     return switch(jnp.asarray(pred).astype(jnp.int32), (false_fun, true_fun), *operands)
 

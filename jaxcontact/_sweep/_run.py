@@ -4,8 +4,9 @@
 (`jax.sharding.Mesh(jax.devices(), ("points",))`): the chunk's parameters, one array of
 shape `(chunk, parameters)` (one transfer), are created with `NamedSharding(mesh,
 PartitionSpec("points", None))` and the vmapped model is `jax.jit`-ed with sharded inputs
-and outputs, so every device computes its slice and nothing is communicated during the
-computation (the points are independent).
+and outputs as a `jax.shard_map` over the mesh, so every device computes its slice as its
+own program and nothing is communicated during the computation (the points are independent;
+a branch of the model that no point of a device's slice takes is skipped on that device).
 
 **Processes.** After `jax.distributed.initialize` `jax.devices()` lists the devices of every
 process; the same mesh then spans the hosts. Every process builds the same chunks (the
@@ -146,6 +147,16 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
         packed = jnp.stack([getattr(out, f).astype(rows.dtype) for f in SUMMARY_FIELDS])
         return packed, ({f: getattr(out, f) for f in CURVE_FIELDS} if curves else None)
 
+    if len(devices) > 1:
+        # each device its own slice as its own program: the model's branches that no point
+        # of the slice takes are skipped per device (`jaxcontact._sharding.switch`), with
+        # no collective between the devices
+        chunk_fn = jax.shard_map(
+            chunk_fn, mesh=mesh, in_specs=(PartitionSpec("points", None),),
+            out_specs=(PartitionSpec(None, "points"),
+                       {f: PartitionSpec("points", None) for f in CURVE_FIELDS} if curves
+                       else None),
+            check_vma=False)
     out_shardings = (packed_sharding, {f: curve_sharding for f in CURVE_FIELDS} if curves
                      else None)
     # the host's CPU options (512-bit vectors on AMD's AVX-512: `jaxcontact._xla`)

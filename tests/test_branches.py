@@ -1,0 +1,131 @@
+"""Branches under ``vmap`` that run only where some lane takes them
+(`jaxcontact._sharding.switch`, `cond`, `any_lane`): the value and the derivatives of every
+lane are those of ``lax.switch`` on that lane alone, and a branch that no lane takes does not
+run (counted by a host callback inside it)."""
+
+import collections
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax import lax
+
+import jaxcontact as jc
+from jaxcontact import _sharding
+from jaxcontact._sharding import any_lane
+
+pytestmark = pytest.mark.skipif(not _sharding.LANE_BRANCHES,
+                                reason="JAXCONTACT_LANE_BRANCHES=0: plain lax.switch")
+
+
+def _branches(counts=None):
+    """Three branches of different smooth functions of (x, y); with `counts`, each branch
+    counts its runs through a host callback (without arguments: once a run, for all lanes)."""
+
+    def tagged(k, fn):
+        def branch(x, y):
+            if counts is not None:
+                jax.debug.callback(lambda: counts.update([k]))
+            return fn(x, y)
+        return branch
+
+    return (tagged(0, lambda x, y: (jnp.sin(x) * y, x + y)),
+            tagged(1, lambda x, y: (jnp.exp(0.3 * x) - y ** 2, x * y)),
+            tagged(2, lambda x, y: (jnp.log1p(x * x) + 3.0 * y, y - x)))
+
+
+def test_any_lane_reduces_over_every_vmapped_axis():
+    flags = jnp.array([[False, False, True], [False, False, False]])
+    assert bool(any_lane(jnp.asarray(True))) and not bool(any_lane(jnp.asarray(False)))
+    # one lane true: every lane of both axes reads true (the result is not batched)
+    out = jax.vmap(jax.vmap(any_lane))(flags)
+    np.testing.assert_array_equal(out, np.ones((2, 3), bool))
+    out = jax.vmap(jax.vmap(any_lane))(jnp.zeros((2, 3), bool))
+    np.testing.assert_array_equal(out, np.zeros((2, 3), bool))
+    # the inner axis alone under jit
+    out = jax.jit(jax.vmap(any_lane))(flags[1])
+    np.testing.assert_array_equal(out, np.zeros(3, bool))
+
+
+@pytest.mark.parametrize("index", [[0, 2, 2, 0, 1], [2, 2, 2, 2, 2], [-3, 7, 1, 0, 2]])
+def test_switch_equals_lax_switch_per_lane_with_derivatives(index):
+    index = jnp.asarray(index)
+    xs = jnp.linspace(0.2, 1.4, index.size)
+    ys = jnp.linspace(-0.5, 0.7, index.size)
+    br = _branches()
+
+    def ours(i, x, y):
+        return _sharding.switch(i, br, x, y)
+
+    def plain(i, x, y):
+        return lax.switch(i, br, x, y)
+
+    got = jax.jit(jax.vmap(ours))(index, xs, ys)
+    want = [plain(i, x, y) for i, x, y in zip(index, xs, ys, strict=True)]
+    for g, w in zip(got, zip(*want, strict=True), strict=True):
+        np.testing.assert_allclose(g, np.stack(w), rtol=1e-14)
+    # forward mode inside vmap (the fitting's Jacobian) and reverse mode
+    jac = jax.vmap(jax.jacfwd(lambda x, y, i: ours(i, x, y)[0], argnums=(0, 1)),
+                   in_axes=(0, 0, 0))(xs, ys, index)
+    grad = jax.vmap(jax.grad(lambda x, y, i: ours(i, x, y)[0], argnums=(0, 1)))(xs, ys, index)
+    for i, x, y, jx, jy, gx, gy in zip(index, xs, ys, *jac, *grad, strict=True):
+        wx, wy = jax.grad(lambda x, y, i=i: plain(i, x, y)[0], argnums=(0, 1))(x, y)
+        np.testing.assert_allclose([jx, jy, gx, gy], [wx, wy, wx, wy], rtol=1e-13)
+
+
+def test_a_branch_no_lane_takes_does_not_run():
+    counts = collections.Counter()
+    br = _branches(counts)
+    xs, ys = jnp.linspace(0.1, 1.0, 6), jnp.linspace(0.3, 0.9, 6)
+    run = jax.jit(jax.vmap(lambda i, x, y: _sharding.switch(i, br, x, y)))
+    jax.block_until_ready(run(jnp.zeros(6, int), xs, ys))
+    jax.effects_barrier()
+    assert dict(counts) == {0: 1}
+    counts.clear()
+    jax.block_until_ready(run(jnp.array([0, 0, 2, 0, 0, 0]), xs, ys))
+    jax.effects_barrier()
+    # the branch one lane takes runs (for the batch); the untaken one still does not
+    assert dict(counts) == {0: 1, 2: 1}
+    counts.clear()
+    # unbatched: the one branch taken
+    jax.block_until_ready(jax.jit(lambda x, y: _sharding.switch(1, br, x, y))(0.5, 0.2))
+    jax.effects_barrier()
+    assert dict(counts) == {1: 1}
+
+
+def test_cond_runs_only_the_taken_side_under_vmap():
+    counts = collections.Counter()
+    br = _branches(counts)
+    xs = jnp.linspace(0.1, 1.0, 4)
+    out = jax.jit(jax.vmap(lambda x: _sharding.cond(x > 2.0, br[1], br[0], x, x)))(xs)
+    jax.effects_barrier()
+    np.testing.assert_allclose(out[0], jnp.sin(xs) * xs, rtol=1e-14)
+    assert dict(counts) == {0: 1}
+
+
+def test_simulate_vmapped_equals_each_lane_alone():
+    # lanes in different branches at the same sample (one touches later, one never lifts
+    # off): every lane's force, jump-off and derivative equal its own unbatched history
+    ts = jnp.linspace(0.0, 2.0, 80)
+    d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
+    prof = jc.Parabola(1e-5)
+    G0s = jnp.array([2e3, 8e3, 3e4])
+    offsets = jnp.array([0.0, -3e-7, 2e-7])
+
+    def one(G0, off):
+        s = jc.simulate(jc.StandardModel(G0, 0.5 * G0, 0.2 * G0), prof, 1e-3, ts, d + off,
+                        grid=16, throw=False)
+        return s.force, s.jumpoff_time
+
+    def dforce(G0, off):
+        return jax.jacfwd(lambda g: one(g, off)[0])(G0)
+
+    batched = jax.vmap(one)(G0s, offsets)
+    dbatched = jax.vmap(dforce)(G0s, offsets)
+    for k in range(3):
+        f, t = one(G0s[k], offsets[k])
+        np.testing.assert_allclose(batched[0][k], f, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(batched[1][k], t, rtol=1e-12)
+        np.testing.assert_allclose(dbatched[k], dforce(G0s[k], offsets[k]), rtol=1e-9,
+                                   atol=1e-22)

@@ -79,7 +79,8 @@ def fit_rows(curves, sizes, baseline_workers, model, repeats, searches=(), base=
         for label, extra, search in runs:
             batch = fitting.BatchOptions(**extra)
             size = batch.chunk_for(n)
-            lanes = batch.lanes(size, search.get("n_starts", fitting.DEFAULT_STARTS))
+            lanes = batch.lanes(size, search.get("n_starts", fitting.DEFAULT_STARTS),
+                                model=model)
             # sizes whose chunk was compiled by an earlier row: one call only
             seen = (any(batch.chunk_for(m) == size for m in sizes[:i]) and not extra
                     and search is base)

@@ -799,7 +799,7 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         chunks = [idx[c0:c0 + size] for c0 in range(0, len(idx), size)]
         search = functools.partial(_timed_search, [[problems[g] for g in part]
                                                    for part in chunks],
-                                   size, options, batch, lanes=batch.lanes(size, n_z),
+                                   size, options, batch, lanes=batch.lanes(size, n_z, model=options.model),
                                    show=show, traced=model_at.start)
         searches = _Streams(search, len(chunks), batch.streams_for(len(chunks)))
         try:

@@ -538,16 +538,23 @@ class BatchOptions(_Options):
         devices = self.devices if self.devices is not None else jax.local_devices()
         return max(1, usable_cores() // max(1, len(devices)))
 
-    def lanes(self, problems: int, starts: int) -> int:
-        """Lanes of the pool for `problems` problems of `starts` starts each: `workers`; or
-        on a CPU one per 8 starts, at least 8 and at most 64 (never more than the starts);
-        on an accelerator one per start."""
+    def lanes(self, problems: int, starts: int, *, model: str = "relaxed") -> int:
+        """Lanes of the pool for `problems` problems of `starts` starts each of the forward
+        model `model` ("relaxed" or "history"): `workers`; or on a CPU one per 8 starts, at
+        least 8 and at most 64 for the relaxed model, 32 for the full-history one (never
+        more than the starts); on an accelerator one per start.
+
+        Why fewer for the full history: its step's branches run where some lane of the
+        pool takes them (`jaxcontact._sharding.switch`), and the more lanes, the more often
+        some lane takes a rare one; its 64-curve map ran 2.2 curves/s on 64 lanes, 2.7 on
+        16 to 32 (``benchmarks/results/fit_each.md``, "Branches that no lane takes")."""
         if self.workers is not None:
             return self.workers
         total = problems * starts
         if self.accelerated:
             return total
-        return min(_CPU_LANES, total, max(_CPU_MIN_LANES, total // _CPU_STARTS_PER_LANE))
+        most = _CPU_LANES_HISTORY if model == "history" else _CPU_LANES
+        return min(most, total, max(_CPU_MIN_LANES, total // _CPU_STARTS_PER_LANE))
 
 
 def padded_indices(n: int, size: int) -> np.ndarray:
@@ -560,6 +567,8 @@ def padded_indices(n: int, size: int) -> np.ndarray:
 #: The platform defaults of :class:`BatchOptions` (see its docstring).
 _CPU_CHUNK, _CPU_LANES, _CPU_MIN_LANES, _CPU_STARTS_PER_LANE, _ACCELERATOR_CHUNK = (
     64, 64, 8, 8, 4096)
+#: At most this many lanes on a CPU for the full-history model (:meth:`BatchOptions.lanes`).
+_CPU_LANES_HISTORY = 32
 
 #: Device memory of the search per start and residual [bytes], an upper estimate: measured
 #: peaks on one H100 were ~320 (relaxed model, 65,536 starts of 60 samples: 1.16 GiB) and

@@ -164,6 +164,8 @@ def test_schedule_by_platform():
     assert [four.chunk_for(n) for n in (100, 192, 193, 256)] == [25, 48, 64, 64]
     assert [gpu.chunk_for(n) for n in (1, 300, 20_000)] == [1, 300, 4096]
     assert [cpu.lanes(p, 16) for p in (1, 4, 8, 16, 100)] == [8, 8, 16, 32, 64]
+    assert [cpu.lanes(p, 16, model="history") for p in (1, 16, 100)] == [8, 32, 32]
+    assert gpu.lanes(4096, 16, model="history") == 65_536
     assert cpu.lanes(1, 4) == 4  # never more lanes than starts
     assert [gpu.lanes(p, 16) for p in (1, 4096)] == [16, 65_536]
     assert fitting.BatchOptions(chunk=3, workers=5, devices=[Gpu()]).chunk_for(100) == 3

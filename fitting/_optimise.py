@@ -797,10 +797,11 @@ def identify(groups: Sequence[Sequence[Curve]], options: FitOptions, batch: Batc
         # the chunks' searches, one per stream at once (`BatchOptions.streams_for`), each
         # finished here in order
         chunks = [idx[c0:c0 + size] for c0 in range(0, len(idx), size)]
+        lanes = batch.lanes(size, n_z, model=options.model)
         search = functools.partial(_timed_search, [[problems[g] for g in part]
                                                    for part in chunks],
-                                   size, options, batch, lanes=batch.lanes(size, n_z, model=options.model),
-                                   show=show, traced=model_at.start)
+                                   size, options, batch, lanes=lanes, show=show,
+                                   traced=model_at.start)
         searches = _Streams(search, len(chunks), batch.streams_for(len(chunks)))
         try:
             for k, part in enumerate(chunks):

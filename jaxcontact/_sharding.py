@@ -152,18 +152,39 @@ def switch(index, branches, *operands):
     if not _explicit_mesh():
         if not LANE_BRANCHES:
             return lax.switch(which, branches, *operands)
-        outs = []
-        for k, branch in enumerate(branches):
-            shapes = jax.eval_shape(branch, *operands)
-
-            def skipped(*_, shapes=shapes):
-                return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-
-            taken = any_lane(lax.stop_gradient(which == k))
-            outs.append(lax.cond(taken, branch, skipped, *operands))
+        outs = [_lane_branch(which == k, branch, operands) for k, branch in
+                enumerate(branches)]
     else:
         outs = [branch(*operands) for branch in branches]
     return jax.tree.map(lambda *xs: lax.select_n(which, *xs), *outs)
+
+
+def _lane_branch(taken, branch, operands):
+    """`branch(*operands)` where some lane takes it (`taken`, per lane), zeros elsewhere
+    (module docstring). The branch's inputs, the values it closes over included
+    (``jax.closure_convert``), carry no derivative on a lane that does not take it: a
+    branch evaluated for another lane's sake may have infinite derivatives where it is
+    not taken (a square root at 0), and in reverse mode its zero cotangent times those
+    would be a NaN added to the lane's gradient (the select of the outputs keeps it out of
+    the values and of forward-mode derivatives)."""
+    converted, consts = jax.closure_convert(branch, *operands)
+
+    def no_derivative_off_lane(x):
+        x = jnp.asarray(x)
+        if not jnp.issubdtype(x.dtype, jnp.inexact):
+            return x
+        return jnp.where(taken, x, lax.stop_gradient(x))
+
+    args = jax.tree.map(no_derivative_off_lane, (operands, list(consts)))
+    shapes = jax.eval_shape(lambda a: converted(*a[0], *a[1]), args)
+
+    def run(a):
+        return converted(*a[0], *a[1])
+
+    def skipped(_):
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+    return lax.cond(any_lane(lax.stop_gradient(taken)), run, skipped, args)
 
 
 def cond(pred, true_fun, false_fun, *operands):

@@ -106,8 +106,11 @@ def test_cond_runs_only_the_taken_side_under_vmap():
 
 def test_simulate_vmapped_equals_each_lane_alone():
     # lanes in different branches at the same sample (one touches later, one never lifts
-    # off): every lane's force, jump-off and derivative equal its own unbatched history
-    ts = jnp.linspace(0.0, 2.0, 80)
+    # off): every lane's force, jump-off and derivatives (forward and reverse mode) equal
+    # its own unbatched history; the reverse-mode gradient also a central difference (a
+    # branch run for another lane's sake has infinite derivatives where it is not taken:
+    # without care, 0 x inf = NaN in the gradient of that lane)
+    ts = jnp.linspace(0.0, 2.0, 60)
     d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
     prof = jc.Parabola(1e-5)
     G0s = jnp.array([2e3, 8e3, 3e4])
@@ -121,11 +124,23 @@ def test_simulate_vmapped_equals_each_lane_alone():
     def dforce(G0, off):
         return jax.jacfwd(lambda g: one(g, off)[0])(G0)
 
-    batched = jax.vmap(one)(G0s, offsets)
-    dbatched = jax.vmap(dforce)(G0s, offsets)
+    def work(G0, off):  # the contact's work over the approach and part of the lift [J]
+        f = one(G0, off)[0]
+        return jnp.sum(0.5 * (f[1:41] + f[:40]) * jnp.diff(d[:41]))
+
+    # every function compiled once, batched and alone (one lane per call)
+    batched = jax.jit(jax.vmap(one))(G0s, offsets)
+    dbatched = jax.jit(jax.vmap(dforce))(G0s, offsets)
+    grads = jax.jit(jax.vmap(jax.grad(work)))(G0s, offsets)
+    one_, dforce_, grad_, work_ = (jax.jit(f) for f in (one, dforce, jax.grad(work), work))
     for k in range(3):
-        f, t = one(G0s[k], offsets[k])
+        f, t = one_(G0s[k], offsets[k])
         np.testing.assert_allclose(batched[0][k], f, rtol=1e-12, atol=1e-18)
         np.testing.assert_allclose(batched[1][k], t, rtol=1e-12)
-        np.testing.assert_allclose(dbatched[k], dforce(G0s[k], offsets[k]), rtol=1e-9,
+        np.testing.assert_allclose(dbatched[k], dforce_(G0s[k], offsets[k]), rtol=1e-9,
                                    atol=1e-22)
+        g, h = G0s[k], 1e-6 * G0s[k]
+        central = (work_(g + h, offsets[k]) - work_(g - h, offsets[k])) / (2 * h)
+        assert np.isfinite(grads[k])
+        np.testing.assert_allclose(grads[k], grad_(g, offsets[k]), rtol=1e-10)
+        np.testing.assert_allclose(grads[k], central, rtol=1e-6)

@@ -45,14 +45,21 @@ of the batch takes this branch" (`any_lane`: a ``custom_vmap`` whose batching ru
 the predicate over the vmapped axis, so that the result is not batched and the
 ``lax.cond`` stays a conditional under every ``vmap`` above it), then select per lane as
 ``vmap`` does. Every lane gets the value of its own branch, as with ``lax.switch``; only
-the work of branches that no lane takes is skipped. Unbatched, one branch runs. Why: the
+the work of branches that no lane takes is skipped. Unbatched, one branch runs. A branch
+run for another lane's sake passes no derivative to a lane that does not take it (its
+inputs, closed-over values included, through ``where(taken, x, stop_gradient(x))``): it
+may have infinite derivatives there (a square root at 0), and in reverse mode its zero
+cotangent times those would be a NaN added to that lane's gradient. Why all this: the
 foundation model's step has three branches (pinned, advancing, receding front), and under
 ``vmap`` ``lax.switch`` computes all three for every lane at every sample, while the lanes
 of a fit or a sweep mostly take the same one (the front advances on the approach and
-recedes on the lift); measured on the fitting's full-history objective, 32 lanes, one core
-(``benchmarks/results/fit_each.md``, "Branches that no lane takes"): its Jacobian 2.5×
-faster, the same values to round-off. ``JAXCONTACT_LANE_BRANCHES=0`` (read at import)
-restores ``lax.switch`` (a baseline for benchmarks).
+recedes on the lift); measured (``benchmarks/results/fit_each.md``, "Branches that no lane
+takes"): the fitting's full-history Jacobian 1.5–1.8× faster a lane, `simulate`'s 2.2×,
+full-history sweeps 2.2–2.7×, the same values to round-off. In a program sharded over
+several devices in automatic mode the predicate is reduced over all of them (a collective a
+branch and time step); `jc.sweep` therefore runs each device's slice as a ``shard_map``.
+``JAXCONTACT_LANE_BRANCHES=0`` (read at import) restores ``lax.switch`` (the baseline of
+the benchmarks; tests: ``tests/test_branches.py``).
 
 With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
 ``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).

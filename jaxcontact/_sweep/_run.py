@@ -147,18 +147,15 @@ def _compiled(model, material, profile, names, curves, devices, dtype_name):
         packed = jnp.stack([getattr(out, f).astype(rows.dtype) for f in SUMMARY_FIELDS])
         return packed, ({f: getattr(out, f) for f in CURVE_FIELDS} if curves else None)
 
+    out_shardings = (packed_sharding, {f: curve_sharding for f in CURVE_FIELDS} if curves
+                     else None)
     if len(devices) > 1:
         # each device its own slice as its own program: the model's branches that no point
         # of the slice takes are skipped per device (`jaxcontact._sharding.switch`), with
         # no collective between the devices
         chunk_fn = jax.shard_map(
-            chunk_fn, mesh=mesh, in_specs=(PartitionSpec("points", None),),
-            out_specs=(PartitionSpec(None, "points"),
-                       {f: PartitionSpec("points", None) for f in CURVE_FIELDS} if curves
-                       else None),
-            check_vma=False)
-    out_shardings = (packed_sharding, {f: curve_sharding for f in CURVE_FIELDS} if curves
-                     else None)
+            chunk_fn, mesh=mesh, in_specs=(sharding.spec,),
+            out_specs=jax.tree.map(lambda s: s.spec, out_shardings), check_vma=False)
     # the host's CPU options (512-bit vectors on AMD's AVX-512: `jaxcontact._xla`)
     fn = jax.jit(chunk_fn, in_shardings=(sharding,), out_shardings=out_shardings,
                  compiler_options=cpu_options(platform=devices[0].platform))

@@ -183,10 +183,11 @@ def _lane_branch(taken, branch, operands):
         return jnp.where(taken, x, lax.stop_gradient(x))
 
     args = jax.tree.map(no_derivative_off_lane, (operands, list(consts)))
-    shapes = jax.eval_shape(lambda a: converted(*a[0], *a[1]), args)
 
     def run(a):
         return converted(*a[0], *a[1])
+
+    shapes = jax.eval_shape(run, args)
 
     def skipped(_):
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)

@@ -123,6 +123,10 @@ def main(argv=None):
                     help="comma-separated values of FitOptions.search_cells to time (history "
                          "model; default: the library's default only); each row's chi2 is "
                          "compared with the first value's")
+    ap.add_argument("--abandon", default="",
+                    help="comma-separated values of FitOptions.abandon to time ('none': no "
+                         "start abandoned; default: the library's default only); each row's "
+                         "chi2 is compared with the first value's")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--no-loop", action="store_true", help="leave out the loop of fit")
     ap.add_argument("--quick", action="store_true",
@@ -158,10 +162,12 @@ def main(argv=None):
         print(rows[-1], flush=True)
     streams = [int(k) for k in args.streams.split(",") if k] or [None]
     grids = [int(k) for k in args.search_cells.split(",") if k] or [None]
+    abandons = [None if a == "none" else float(a) for a in args.abandon.split(",") if a] \
+        or [fitting.DEFAULT_ABANDON]
     chi_first = {}
-    for chunk, k, grid in ((int(c), k, g) for c in args.chunks.split(",") for k in streams
-                           for g in grids):
-        kw = dict(fit_kw, chunk=chunk, streams=k, search_cells=grid)
+    for chunk, k, grid, ab in ((int(c), k, g, a) for c in args.chunks.split(",")
+                               for k in streams for g in grids for a in abandons):
+        kw = dict(fit_kw, chunk=chunk, streams=k, search_cells=grid, abandon=ab)
         t0 = time.perf_counter()
         fitting.fit_each(curves, **kw)
         cold = time.perf_counter() - t0
@@ -196,6 +202,8 @@ def main(argv=None):
         n_streams = fitting.BatchOptions(streams=k).streams_for(
             -(-args.curves // chunk))
         label = "`fit_each`" if grid is None else f"`fit_each`, search on {grid} cells"
+        if ab != fitting.DEFAULT_ABANDON:
+            label += f", abandon {ab}"
         rows.append(f"| {label} | {chunk} | {n_streams} | {cold:.1f} | {w:.2f} | "
                     f"{args.curves / w:.2f} | {ms['prepare']:.1f} | "
                     f"{ms['optimise']:.1f} | {ms['finish']:.1f} | {steps:.0f} | "

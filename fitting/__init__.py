@@ -41,6 +41,7 @@ from ._objective import residuals as residuals
 from ._optimise import fit as fit
 from ._optimise import solve as solve
 from ._optimise import solve_batch as solve_batch
+from ._options import DEFAULT_ABANDON as DEFAULT_ABANDON
 from ._options import DEFAULT_EXPLORE_STEPS as DEFAULT_EXPLORE_STEPS
 from ._options import DEFAULT_LOCAL_ROUNDS as DEFAULT_LOCAL_ROUNDS
 from ._options import DEFAULT_SCREEN as DEFAULT_SCREEN

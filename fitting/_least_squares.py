@@ -9,10 +9,12 @@ drivers below run `step` in a `lax.while_loop` until `terminate` says so:
 * :func:`run_pool`: many independent problems on `workers` lanes; a lane whose problem
   has stopped takes the next one from the queue inside the same loop, so the cost is the
   sum of the steps rather than (problems × the largest step count). Each problem may have
-  its own step limit (`limits`; 0: not run, it costs one lane-step).
+  its own step limit (`limits`; 0: not run, it costs one lane-step) and a bound on its
+  $\chi^2$ (`bounds`: a run still above it after :data:`ABANDON_AFTER` steps is abandoned,
+  :meth:`AbstractLeastSquaresSolver.abandon`).
 
 Both return a :class:`Solution`: per problem (lane) the end point, $\chi^2$, the steps and
-a :class:`RESULTS` code (converged, step limit, stagnated, non-finite start), as
+a :class:`RESULTS` code (converged, step limit, stagnated, non-finite start, abandoned), as
 optimistix returns one.
 
 :class:`LevenbergMarquardt` (default of :func:`fitting.fit`): Marquardt scaling,
@@ -53,15 +55,20 @@ class RESULTS:
     step limit before converging; `stagnated` (2): no step lowers $\chi^2$ any more without
     meeting the tolerance (Levenberg–Marquardt: the damping grew past $10^{10}$; L-BFGS: a
     line search without decrease); `nonfinite` (3): the residuals at the start are not
-    finite (the run did not move).
+    finite (the run did not move); `abandoned` (4): stopped by its driver because its
+    $\chi^2$ was still above the problem's bound after :data:`ABANDON_AFTER` steps
+    (:meth:`AbstractLeastSquaresSolver.abandon`; a start of a local round that has left the
+    neighbourhood of the best end point known).
     """
 
     successful = 0
     max_steps_reached = 1
     stagnated = 2
     nonfinite = 3
+    abandoned = 4
     messages = ("converged", "stopped at the step limit", "stagnated (no step lowers chi2)",
-                "non-finite residuals at the start")
+                "non-finite residuals at the start",
+                "abandoned (chi2 still above the bound of its problem)")
 
     @classmethod
     def describe(cls, code) -> str:
@@ -104,6 +111,11 @@ class Solution(eqx.Module):
                             self, other)
 
 
+#: Steps (the first evaluation counted, as a state's `steps` counts) after which a run whose
+#: $\chi^2$ is still above its bound is abandoned (:meth:`AbstractLeastSquaresSolver.abandon`).
+ABANDON_AFTER = 5
+
+
 class AbstractLeastSquaresSolver(eqx.Module):
     """A solver as `init(fn, z0, ctx) -> state`, `step(fn, state, ctx) -> state`,
     `terminate(state) -> (done, converged)` and `chi2(state)` ($\\sum r^2$)."""
@@ -137,6 +149,17 @@ class AbstractLeastSquaresSolver(eqx.Module):
     def terminate(self, state):
         """`(done, converged)` of a state (every state carries both flags)."""
         return state.done, state.ok
+
+    def abandon(self, state, bound):
+        r"""`state` stopped (done, :attr:`RESULTS.abandoned`) where it is still running
+        after at least :data:`ABANDON_AFTER` steps and its $\chi^2$ is above `bound` (one
+        lane, under `vmap`; `bound` = $\infty$: never). The state's point, $\chi^2$ and
+        carried residuals stay those of its last accepted step."""
+        stop = ~state.done & (state.steps >= ABANDON_AFTER) & (self.chi2(state) > bound)
+        return eqx.tree_at(lambda s: (s.done, s.result), state,
+                           (state.done | stop,
+                            jnp.where(stop, RESULTS.abandoned, state.result).astype(
+                                state.result.dtype)))
 
     def hold(self, old, new):
         """The state of a lane after a step from `old` to `new`: `new`, or `old` where `old`
@@ -479,17 +502,22 @@ def run_starts(solver: AbstractLeastSquaresSolver, fn, z0s, ctx, *,
         _every_lane(solver, fn, states, lambda s: ctx, in_axes=None))
 
 
-def _every_lane(solver, fn, states, ctx_of, *, in_axes):
-    """Step every lane (leading axis of `states`) until all have stopped, each stopped
+def _every_lane(solver, fn, states, ctx_of, *, in_axes, bounds=None):
+    r"""Step every lane (leading axis of `states`) until all have stopped, each stopped
     lane held (:meth:`AbstractLeastSquaresSolver.hold`; a `while_loop` under `vmap` would
     choose every leaf of every lane's state, the trial point's Jacobian included, after
-    each step). `ctx_of(states)`: the contexts, batched as `in_axes` says."""
+    each step). `ctx_of(states)`: the contexts, batched as `in_axes` says; `bounds`: each
+    lane's bound on $\chi^2$ (:meth:`AbstractLeastSquaresSolver.abandon`; None: none)."""
 
     def body(s):
-        def one(old, ctx):
-            return solver.hold(old, solver.step(fn, old, ctx))
+        def one(old, ctx, bound):
+            new = solver.step(fn, old, ctx)
+            if bound is not None:
+                new = solver.abandon(new, bound)
+            return solver.hold(old, new)
 
-        return jax.vmap(one, in_axes=(0, in_axes))(s, ctx_of(s))
+        return jax.vmap(one, in_axes=(0, in_axes, None if bounds is None else 0))(
+            s, ctx_of(s), bounds)
 
     return jax.lax.while_loop(lambda s: ~jnp.all(s.done), body, states)
 
@@ -499,14 +527,17 @@ def _take(tree, i):
 
 
 def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
-             limits=None, keep_jacobian: bool = False) -> Solution:
+             limits=None, bounds=None, keep_jacobian: bool = False) -> Solution:
     r"""The :class:`Solution` of `len(z0s)` problems solved on `workers` lanes, with the
     residuals and Jacobian of each final state when `keep_jacobian` and the solver
     carries them.
 
     `ctxs` has a leading problem axis. `limits`: the step limit of each problem (default:
     the solver's `max_steps`; 0: not run, its result reads `max_steps_reached` with
-    $\chi^2 = \infty$ for Levenberg–Marquardt). All initial states are made first (one
+    $\chi^2 = \infty$ for Levenberg–Marquardt). `bounds`: a bound on each problem's
+    $\chi^2$ (default none): a run still above it after :data:`ABANDON_AFTER` steps stops,
+    :attr:`RESULTS.abandoned` (:meth:`AbstractLeastSquaresSolver.abandon`; $\infty$:
+    never). All initial states are made first (one
     batched call); then one loop iterates all lanes; a lane whose problem is done writes
     its result and is refilled from the queue (the problems not run, limit 0, are written
     from their initial states and take no lane). The loop ends when every problem is
@@ -519,12 +550,15 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         limits = jnp.broadcast_to(jnp.asarray(limits, states0.limit.dtype), (n_tasks,))
         states0 = eqx.tree_at(lambda s: (s.limit, s.done), states0,
                               (limits, states0.done | (limits <= 0)))
+    if bounds is not None:
+        bounds = jnp.broadcast_to(jnp.asarray(bounds, solver.chi2(states0).dtype), (n_tasks,))
 
     def result(s):
         return _solution(solver, s, keep_jacobian)
 
     if w == n_tasks:  # a lane per problem: no queue, no gather of contexts, one write
-        return jax.vmap(result)(_every_lane(solver, fn, states0, lambda s: ctxs, in_axes=0))
+        return jax.vmap(result)(_every_lane(solver, fn, states0, lambda s: ctxs, in_axes=0,
+                                            bounds=bounds))
 
     # the queue: the problems to run (not done at the start: limit > 0), in their order;
     # the others are written as they start (their initial states' results)
@@ -561,8 +595,10 @@ def run_pool(solver: AbstractLeastSquaresSolver, fn, z0s, ctxs, workers: int, *,
         # compute the model's Jacobian a second time, inside it: 1/4 of a step)
         work, pos, out, queued, written = collect(*c)
         ctx = _take(ctxs, task(pos))
-        return (jax.vmap(lambda s, x: solver.step(fn, s, x))(work, ctx), pos, out, queued,
-                written)
+        work = jax.vmap(lambda s, x: solver.step(fn, s, x))(work, ctx)
+        if bounds is not None:
+            work = jax.vmap(solver.abandon)(work, bounds[task(pos)])
+        return work, pos, out, queued, written
 
     def cond(c):  # some problem is neither written nor finished
         work, pos, _, _, written = c

@@ -195,8 +195,9 @@ def solve(spec: ModelSpec, param: Parameterisation, data: CurveBatch, z0s, *,
 def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0s, *,
                 workers: int = 8, rtol: float = 1e-8, atol: float = 1e-9, gtol: float = 1e-8,
                 max_steps: int = 200, optimiser: str = "lm", devices=None,
-                keep_jacobian: bool = False, limits=None, traced=None) -> Solution:
-    """Independent problems in one compiled call, scheduled as a pool of `workers` lanes.
+                keep_jacobian: bool = False, limits=None, bounds=None,
+                traced=None) -> Solution:
+    r"""Independent problems in one compiled call, scheduled as a pool of `workers` lanes.
 
     `params`, `datas` and `z0s` carry a leading problem axis (stack equally shaped problems
     with ``jax.tree.map(lambda *x: jnp.stack(x), *problems)``; the free parameters must be
@@ -204,6 +205,9 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
     (`z`, `chi2`, `result`, `steps`; with `keep_jacobian` also the residuals `r` and their
     Jacobian `J` with respect to `z` at the end point of each, Levenberg–Marquardt only).
     `limits`: a step limit per problem (default `max_steps` for all; 0: not run).
+    `bounds`: a bound on each problem's $\chi^2$ (default $\infty$ for all): a run still
+    above it after :data:`fitting._least_squares.ABANDON_AFTER` steps is abandoned
+    (:attr:`fitting.RESULTS.abandoned`).
 
     `devices`: the devices to spread the problems over (default: every local device of
     JAX's default backend). With more than one, the problems are split into equal shares
@@ -227,12 +231,14 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
                 keep_jacobian=bool(keep_jacobian))
     limits = np.broadcast_to(np.asarray(max_steps if limits is None else limits,
                                         dtype=np.int32), (n,))
+    bounds = np.broadcast_to(np.asarray(np.inf if bounds is None else bounds,
+                                        dtype=np.asarray(z0s).dtype), (n,))
     if n_dev == 1:
         with jax.default_device(devices[0]):  # (a part of the key of JAX's trace cache)
             # the traced program from the on-disk cache when it is on (fitting._programs)
             run = _programs.cached("solve_batch", _solve_batch,
                                    (spec, params, datas, jnp.asarray(z0s),
-                                    jnp.asarray(limits)), opts,
+                                    jnp.asarray(limits), jnp.asarray(bounds)), opts,
                                    flatten_out=_solution_fields, unflatten_out=_as_solution,
                                    compiler_options=program_options(spec.model))
             if run is not None:
@@ -240,9 +246,9 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
                     traced()
                 return run()
             if traced is not None:  # JAX keeps the trace for the call below
-                _solve_batch.trace(spec, params, datas, z0s, limits, **opts)
+                _solve_batch.trace(spec, params, datas, z0s, limits, bounds, **opts)
                 traced()
-            return _solve_batch(spec, params, datas, z0s, limits, **opts)
+            return _solve_batch(spec, params, datas, z0s, limits, bounds, **opts)
     if traced is not None:
         traced()
     fill = padded_indices(n, n_dev * share)
@@ -253,7 +259,7 @@ def solve_batch(spec: ModelSpec, params: Parameterisation, datas: CurveBatch, z0
 
     run = _pmapped_pool(spec, tuple(devices[:n_dev]), tuple(sorted(opts.items())))
     out = run(jax.tree.map(split, params), jax.tree.map(split, datas), split(z0s),
-              split(limits))
+              split(limits), split(bounds))
     return jax.tree.map(lambda x: x.reshape((n_dev * share,) + x.shape[2:])[:n], out)
 
 
@@ -268,19 +274,19 @@ def _as_solution(fields) -> Solution:
 
 
 @model_jit(static_argnames=_OPTIONS + ("keep_jacobian",))
-def _solve_batch(spec, params, datas, z0s, limits, *, workers, rtol, atol, gtol, max_steps,
-                 optimiser, keep_jacobian):
+def _solve_batch(spec, params, datas, z0s, limits, bounds, *, workers, rtol, atol, gtol,
+                 max_steps, optimiser, keep_jacobian):
     solver = _solver(optimiser, rtol, atol, gtol, max_steps)
     if keep_jacobian:  # and the model at the end points, where the solver can carry it
         solver = solver.with_model() or solver
     return run_pool(solver, _fn(spec), z0s, (params, datas), workers, limits=limits,
-                    keep_jacobian=keep_jacobian)
+                    bounds=bounds, keep_jacobian=keep_jacobian)
 
 
 @functools.lru_cache(maxsize=16)
 def _pmapped_pool(spec, devices, opts):
     # every device runs `_solve_batch` on its share
-    return jax.pmap(lambda p, d, z, lim: _solve_batch(spec, p, d, z, lim, **dict(opts)),
+    return jax.pmap(lambda p, d, z, lim, b: _solve_batch(spec, p, d, z, lim, b, **dict(opts)),
                     devices=list(devices))
 
 
@@ -623,20 +629,34 @@ def _improved(chi2, before: float) -> bool:
     return _best_loss(chi2) < before * (1.0 - 1e-7)
 
 
+def _round_bounds(best: float, n: int, abandon: float | None) -> np.ndarray:
+    r"""The bounds on $\chi^2$ of a local round's `n` starts (:func:`_local_search`): none
+    for the first (the best end point continued), `abandon` × `best` for the others
+    (none without `abandon` or a finite `best`)."""
+    out = np.full(n, np.inf)
+    if abandon is not None and np.isfinite(best):
+        out[1:] = abandon * best
+    return out
+
+
 def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: int,
-                  seed: int, max_steps: int, explore_steps: int, limits=None,
-                  show=None) -> list[Solution]:
-    """The local rounds of each problem after its global search (one home for :func:`fit`
+                  seed: int, max_steps: int, explore_steps: int, abandon: float | None = None,
+                  limits=None, show=None) -> list[Solution]:
+    r"""The local rounds of each problem after its global search (one home for :func:`fit`
     and :func:`fitting.fit_each`).
 
     `params`: the problems' parameterisations; `outs`: their global searches (host
     :class:`Solution`, one lane per start) and `limits` the step limit each start ran with
-    (default `max_steps`); `run(starts, limits)`: one compiled call of the pool on `n`
-    starts per problem with a step limit per start, returning a host :class:`Solution`
-    per problem. Each round gives every problem whose rounds are not done `n` starts
-    (:func:`fitting._start.local_starts`): the first, the best end point continued, with
-    `max_steps`, the others (exploring) with `explore_steps`; a problem whose rounds are
-    done gets limit 0 (not run: it costs one lane-step a start). After the rounds, a
+    (default `max_steps`); `run(starts, limits, bounds)`: one compiled call of the pool on
+    `n` starts per problem with a step limit and a bound on $\chi^2$ per start
+    (:func:`solve_batch`), returning a host :class:`Solution` per problem. Each round gives
+    every problem whose rounds are not done `n` starts (:func:`fitting._start.local_starts`):
+    the first, the best end point continued, with `max_steps`, the others (exploring) with
+    `explore_steps` and, with `abandon` and in a round that is not widened, the bound
+    `abandon` × the best $\chi^2$ known before the round (a start still above it after
+    :data:`fitting._least_squares.ABANDON_AFTER` steps has left the best's neighbourhood
+    and is abandoned); a problem whose rounds are done gets limit 0 (not run: it costs
+    one lane-step a start). After the rounds, a
     problem whose best end point stopped unconverged at an exploring limit is continued
     from there with `max_steps` (one more call, only if some problem needs it). Returns
     the merged solutions. A problem none of whose starts ran (limit 0: a chunk's
@@ -663,7 +683,9 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
         starts = [np.asarray(o.z[:1]).repeat(n, axis=0) for o in outs]
         for i, j in enumerate(going):
             starts[j] = batch[i]
-        new = run(starts, [np.zeros(n, np.int32) if r.done else explore for r in rounds])
+        new = run(starts, [np.zeros(n, np.int32) if r.done else explore for r in rounds],
+                  [_round_bounds(b, n, abandon if r.widen == 1.0 else None)
+                   for b, r in zip(before, rounds, strict=True)])
         for j, r in enumerate(rounds):  # a problem whose rounds are done keeps its lanes
             if r.done:
                 continue
@@ -683,7 +705,8 @@ def _local_search(params, outs: list[Solution], run, *, n: int, local_rounds: in
                                                                                 strict=True)]
         lim = np.zeros(n, np.int32)
         lim[0] = max_steps
-        new = run(starts, [lim if c else np.zeros(n, np.int32) for c in cut])
+        new = run(starts, [lim if c else np.zeros(n, np.int32) for c in cut],
+                  [np.full(n, np.inf)] * len(outs))
         for j, c in enumerate(cut):
             if c:
                 outs[j] = outs[j].concat(new[j].take(slice(0, 1)))
@@ -897,11 +920,12 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     datas = _stack([pb.data for pb in fill], n_z)
     spec = options.search_spec(fill[0].spec)
 
-    def run(starts, limits):
+    def run(starts, limits, bounds=None):
         nonlocal traced, searched  # called on the first call only
         hook, traced = traced, None
         out = jax.device_get(solve_batch(
             spec, params, datas, np.concatenate(starts), limits=np.concatenate(limits),
+            bounds=None if bounds is None else np.concatenate(bounds),
             workers=lanes, rtol=options.rtol, max_steps=options.max_steps,
             optimiser=options.optimiser, devices=batch.devices, keep_jacobian=True,
             traced=hook))
@@ -921,7 +945,7 @@ def _search_chunk(problems: list[_Problem], size: int, options: FitOptions,
     outs = _local_search([pb.param for pb in fill], outs, run, n=n_z,
                          local_rounds=options.local_rounds, seed=options.seed,
                          max_steps=options.max_steps, explore_steps=options.explore_steps,
-                         limits=limits, show=show)
+                         abandon=options.abandon, limits=limits, show=show)
     if spec == fill[0].spec:
         return [_Searched(final=o) for o in outs[:n]]
     polished = _polish(fill, outs, n, options, batch, lanes=lanes, show=show)
@@ -1232,7 +1256,8 @@ def _finish(pb: _Problem, out: _Searched, options: FitOptions, pre: dict, *, sho
         search={"n_starts": options.n_starts, "screen": options.screen,
                 "local_rounds": options.local_rounds, "max_steps": options.max_steps,
                 "explore_steps": min(options.explore_steps, options.max_steps),
-                "optimiser": options.optimiser, "rtol": options.rtol, "seed": options.seed,
+                "abandon": options.abandon, "optimiser": options.optimiser,
+                "rtol": options.rtol, "seed": options.seed,
                 **({"cells": spec.cells, "search_cells": options.search_spec(spec).cells}
                    if spec.model == "history" else {})},
     )

@@ -21,8 +21,8 @@ reduced $\chi^2$ and the largest residual in σ); the model (``model``, ``rheolo
 (``start_losses``, on the search's grid; ``polish_losses``, the search's best end points
 continued on the model's own grid when the history model was searched on a coarser one,
 else null; ``search``: its settings, ``n_starts``, ``screen``, ``local_rounds``,
-``max_steps``, ``explore_steps``, ``optimiser``, ``rtol``, ``seed``, and for the history
-model ``cells``, ``search_cells``); ``correlation``;
+``max_steps``, ``explore_steps``, ``abandon``, ``optimiser``, ``rtol``, ``seed``, and for
+the history model ``cells``, ``search_cells``); ``correlation``;
 ``warnings``; ``timings_s``; ``inputs`` (each curve's
 source, segments, samples, duration, spring constant, and its detected contact point and
 baseline when a loader found them, with the sample's surface height there,

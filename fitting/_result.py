@@ -57,7 +57,7 @@ class FitResult:
     distinct end points continued on `cells`, whose best is the result; else `None`),
     `optimiser`, `model_selection` (the candidates of ``rheology="auto"``, else empty),
     `search` (the search's settings: `n_starts`, `screen`, `local_rounds`, `max_steps`,
-    `explore_steps`, `optimiser`, `rtol`, `seed`, and for the history model `cells` and
+    `explore_steps`, `abandon`, `optimiser`, `rtol`, `seed`, and for the history model `cells` and
     `search_cells`; with the data they give the same optimum again).
 
     **Data and model:** `spec`, `data` (the `CurveBatch` fitted), `curves`, `profile`,

@@ -43,6 +43,7 @@ output folder; the others write nothing.
 
 from __future__ import annotations
 
+import math
 import os
 import pathlib
 import sys
@@ -190,6 +191,10 @@ def add_fit_arguments(parser):
     parser.add_argument("--explore-steps", type=int, default=None, metavar="N",
                         help="iterations of an exploring start (all but the continued best; "
                              "default: --max-steps); a best start stopped there is continued")
+    parser.add_argument("--abandon", type=float, default=None, metavar="F",
+                        help="stop a local round's start (not the continued best) whose chi2 "
+                             "is still above F times the best known after 5 steps (F > 1; "
+                             "default: the library's, 100; 'inf': never)")
     parser.add_argument("--max-steps", type=int, default=None, metavar="N",
                         help="iterations per start of the search (default: the library's, "
                              "200); a fit that stops at this limit is written with "
@@ -352,6 +357,9 @@ def _check(args):
     if args.explore_steps is not None and args.explore_steps < 1:
         raise UsageError(f"argument --explore-steps: must be an integer >= 1; got "
                          f"{args.explore_steps}")
+    if args.abandon is not None and not args.abandon > 1:
+        raise UsageError(f"argument --abandon: must be a number > 1 or 'inf'; got "
+                         f"{args.abandon}")
     if args.max_steps is not None and args.max_steps < 1:
         raise UsageError(f"argument --max-steps: must be an integer >= 1; got {args.max_steps}")
     if args.max_samples is not None and args.max_samples < 4:
@@ -444,6 +452,8 @@ def run(args) -> int:
         options["screen"] = args.screen
     if args.explore_steps is not None:
         options["explore_steps"] = args.explore_steps
+    if args.abandon is not None:
+        options["abandon"] = None if math.isinf(args.abandon) else args.abandon
     if args.contact_point is not None:
         options["contact_point"] = args.contact_point  # fitting.fit's vocabulary
     if radius is not None:

@@ -355,6 +355,8 @@ def test_fit_csv_recovers_parameters_and_writes_strict_json(tmp_path, monkeypatc
         (["--radius", "1e-5", "--starts", "4", "--screen", "3"], "--screen"),
         (["--radius", "1e-5", "--screen", "8"], "screen must be 0 or an integer >= n_starts"),
         (["--radius", "1e-5", "--explore-steps", "0"], "--explore-steps"),
+        (["--radius", "1e-5", "--abandon", "1"], "--abandon: must be a number > 1"),
+        (["--radius", "1e-5", "--abandon", "nan"], "--abandon"),
         (["--radius", "1e-5", "--search-cells", "40"],
          "--search-cells: must be an integer in [2, --cells = 32]; got 40"),
         (["--radius", "1e-5", "--cells", "8", "--search-cells", "1"], "--search-cells"),

@@ -1029,6 +1029,12 @@ def test_screen_and_explore_options_are_checked():
         fitting.FitOptions(radius=R, explore_steps=0)
     o = fitting.FitOptions(radius=R, n_starts=4, screen=4, explore_steps=None)
     assert o.screen == 4 and o.explore_steps == fitting.DEFAULT_EXPLORE_STEPS
+    for bad in (1, 0.5, True, "10", float("nan")):
+        with pytest.raises(ValueError, match="abandon must be a number > 1 or None"):
+            fitting.FitOptions(radius=R, abandon=bad)
+    assert fitting.FitOptions(radius=R).abandon == fitting.DEFAULT_ABANDON
+    assert fitting.FitOptions(radius=R, abandon=None).abandon is None
+    assert fitting.FitOptions(radius=R, abandon=30).abandon == 30.0
 
 
 @pytest.mark.parametrize("contact_point", ["none", "fit"])

@@ -181,7 +181,8 @@ def test_map_outputs_keep_flags_warnings_and_settings(each, tmp_path):
     assert table["settings"]["search"] == {
         "n_starts": STARTS, "screen": fitting.DEFAULT_SCREEN,
         "local_rounds": fitting.DEFAULT_LOCAL_ROUNDS, "max_steps": 200,
-        "explore_steps": 200, "optimiser": "lm", "rtol": 1e-8, "seed": 0}
+        "explore_steps": 200, "abandon": fitting.DEFAULT_ABANDON, "optimiser": "lm",
+        "rtol": 1e-8, "seed": 0}
     assert table["ok"] == 3 and table["flagged"] == 0
     import xarray as xr
 
@@ -421,7 +422,7 @@ def test_compiled_fit_programs_hold_no_host_callback(curves):
     n = len(pb.zs)
     pool = O._solve_batch.lower(
         pb.spec, O._stack([pb.param], n), O._stack([pb.data], n), pb.zs,
-        np.full(n, 20, np.int32), workers=2, rtol=1e-8, atol=1e-9, gtol=1e-8, max_steps=20,
+        np.full(n, 20, np.int32), np.full(n, np.inf), workers=2, rtol=1e-8, atol=1e-9, gtol=1e-8, max_steps=20,
         optimiser="lm", keep_jacobian=True).as_text()
     for text in (finish, pool):
         assert "stablehlo" in text and "callback" not in text
@@ -708,3 +709,23 @@ def test_distinct_best_end_points():
     assert distinct_best(chi2, 1).tolist() == [1]
     assert distinct_best(chi2, 3, rtol=1e-12).tolist() == [1, 2, 5]
     assert distinct_best(np.array([np.nan, np.inf]), 3).tolist() == []
+
+
+def test_far_starts_of_the_local_rounds_are_abandoned_without_losing_an_optimum(curves):
+    """The default search abandons a local round's start whose chi2 is still above
+    `abandon` x the best known after 5 steps (`fitting.FitOptions.abandon`). Against the
+    same search without it (`abandon=None`, a second run of the curves): every curve ends
+    at the same optimum (chi2 to 1e-9, parameters to 1e-6), in fewer steps; a lower factor
+    abandons more. The starts' losses stay reported, each abandoned one above its bound."""
+    kw = dict(radius=R, progress=False, chunk=3)
+    full = _quiet(fitting.fit_each, curves, abandon=None, **kw)
+    cut = _quiet(fitting.fit_each, curves, **kw)
+    low = _quiet(fitting.fit_each, curves, abandon=3.0, **kw)
+    steps = [sum(int(np.sum(r.start_steps)) for r in e.results) for e in (full, cut, low)]
+    assert steps[0] > steps[1] >= steps[2]
+    for a, b in zip(full.results, cut.results, strict=True):
+        assert b.chi2 == pytest.approx(a.chi2, rel=1e-9)
+        np.testing.assert_allclose(b.values, a.values, rtol=1e-6)
+        assert len(b.start_losses) == len(a.start_losses)
+        assert b.search["abandon"] == fitting.DEFAULT_ABANDON
+        assert a.search["abandon"] is None

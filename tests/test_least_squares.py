@@ -22,11 +22,11 @@ def rosenbrock_floor(z, ctx):
     return jnp.concatenate([rosenbrock(z, ctx), jnp.ones(1)])
 
 
-def _pool(solver, z0s, limits=None, workers=2, fn=rosenbrock):
+def _pool(solver, z0s, limits=None, workers=2, fn=rosenbrock, bounds=None):
     z0s = jnp.asarray(z0s, dtype=float)
     ctxs = jnp.ones(len(z0s))
     return jax.device_get(run_pool(solver, fn, z0s, ctxs, workers, limits=limits,
-                                   keep_jacobian=True))
+                                   bounds=bounds, keep_jacobian=True))
 
 
 def test_result_code_per_lane():
@@ -65,20 +65,23 @@ def test_solver_step_limit_without_limits_argument_and_lbfgs_codes():
 
 
 def _two_rosenbrock_problems():
-    """The parameterisation of two bounded coordinates, a `run(starts, limits)` of the pool
-    per problem on the floored Rosenbrock function that records the limits of each call
-    (`calls`), and four starts."""
+    """The parameterisation of two bounded coordinates, a `run(starts, limits, bounds)` of
+    the pool per problem on the floored Rosenbrock function that records the limits of each
+    call (`calls`; the bounds in `run.bounds`), and four starts."""
     info = [("a", "1", "modulus"), ("b", "1", "modulus")]
     param = make_parameterisation(info, {"a": 1.0, "b": 1.0},
                                   bounds={"a": (1e-3, 1e3), "b": (1e-3, 1e3)})
     lm = LevenbergMarquardt(max_steps=200)
     calls = []
 
-    def run(starts, limits):
+    def run(starts, limits, bounds=None):
         calls.append([np.asarray(lim).tolist() for lim in limits])
-        return [_pool(lm, zs, limits=lim, fn=rosenbrock_floor)
-                for zs, lim in zip(starts, limits, strict=True)]
+        bounds = [None] * len(starts) if bounds is None else bounds
+        run.bounds.append([None if b is None else np.asarray(b).tolist() for b in bounds])
+        return [_pool(lm, zs, limits=lim, fn=rosenbrock_floor, bounds=b)
+                for zs, lim, b in zip(starts, limits, bounds, strict=True)]
 
+    run.bounds = []  # the bounds on chi2 of each call
     z0 = np.array([[-1.2, 1.0], [-1.0, 2.0], [2.0, 2.0], [0.0, -1.0]])
     return param, run, calls, z0
 
@@ -189,3 +192,67 @@ def test_pool_lanes_past_the_queue_step_stand_ins_that_are_never_written():
         np.testing.assert_array_equal(queued.J, every.J)
         assert queued.converged[1] and np.all(np.isinf(queued.chi2[[0, 2, 3]]))
         np.testing.assert_allclose(queued.z[1], 1.0, atol=1e-6)
+
+
+def test_a_run_above_its_bound_is_abandoned_after_its_steps():
+    """A bound on chi2 stops a run that is still above it after ABANDON_AFTER steps (the
+    first evaluation counted), with RESULTS.abandoned; a run below its bound, or with an
+    infinite one, runs as without bounds: the same steps, end point and chi2 to the bit.
+    Checked against the same starts run without bounds (a second run of the pool)."""
+    from fitting._least_squares import ABANDON_AFTER
+
+    lm = LevenbergMarquardt(max_steps=200)
+    z0s = [[-1.2, 1.0], [-1.2, 1.0], [-1.2, 1.0], [3.0, -2.0]]
+    free = _pool(lm, z0s, workers=2)
+    assert free.result.tolist() == [RESULTS.successful] * 4
+    # the chi2 of each run after ABANDON_AFTER steps, from a run stopped there by its limit
+    early = _pool(lm, z0s, limits=np.full(4, ABANDON_AFTER - 1), workers=2)
+    assert early.steps.tolist() == [ABANDON_AFTER] * 4
+    above = early.chi2[1] * 0.5  # lane 1 is still above this bound after its steps
+    bounds = np.array([np.inf, above, early.chi2[2] * 2.0, np.inf])
+    for workers in (2, 4):  # the queue, and a lane per problem
+        sol = _pool(lm, z0s, bounds=bounds, workers=workers)
+        assert sol.result.tolist() == [RESULTS.successful, RESULTS.abandoned,
+                                       RESULTS.successful, RESULTS.successful]
+        assert sol.steps[1] == ABANDON_AFTER and sol.chi2[1] > above
+        assert sol.chi2[1] == early.chi2[1]
+        np.testing.assert_array_equal(sol.z[1], early.z[1])
+        for i in (0, 2, 3):
+            assert sol.steps[i] == free.steps[i] and sol.chi2[i] == free.chi2[i]
+            np.testing.assert_array_equal(sol.z[i], free.z[i])
+    assert RESULTS.describe(RESULTS.abandoned).startswith("abandoned")
+    # L-BFGS: the same rule (the driver's, through the solver's chi2)
+    lb = _pool(LBFGS(max_steps=500), z0s[:2], bounds=np.array([np.inf, 1e-30]), workers=2)
+    assert lb.result.tolist() == [RESULTS.successful, RESULTS.abandoned]
+    assert lb.steps[1] == ABANDON_AFTER
+
+
+def test_local_rounds_bound_their_exploring_starts():
+    """A local round that is not widened gives every start but the continued best the bound
+    `abandon` x the best chi2 known before the round; a widened round (after one without
+    progress), the global search, the continued best and the continuation of a best
+    stopped at its limit have none (infinite)."""
+    param, run, calls, z0 = _two_rosenbrock_problems()
+    n = len(z0)
+    first = run([z0, z0], [np.full(n, 2), np.full(n, 200)])
+    before = [float(np.min(o.chi2)) for o in first]
+    out = _optimise._local_search([param, param], first, run, n=n, local_rounds=2, seed=0,
+                                  max_steps=200, explore_steps=2, abandon=10.0,
+                                  limits=[np.full(n, 2), np.full(n, 200)])
+    one, two = run.bounds[1], run.bounds[2]
+    for j in range(2):  # the first round: neither is widened
+        assert one[j][0] == np.inf
+        np.testing.assert_allclose(one[j][1:], 10.0 * before[j], rtol=1e-15)
+    # the second round: problem 0 improved in the first (its global search was stopped
+    # early), problem 1 did not (at its minimum already): its round is widened, unbounded
+    assert np.min(out[0].chi2[n:2 * n]) < before[0] * (1 - 1e-7)
+    assert one != two and two[0][0] == np.inf and two[0][1] < np.inf
+    assert all(b == np.inf for b in two[1])
+    for later in run.bounds[3:]:  # the continuation of a best stopped at its limit
+        assert all(b == np.inf for lane in later for b in lane)
+    # without `abandon`, no bound
+    run.bounds.clear()
+    _optimise._local_search([param, param], first, run, n=n, local_rounds=1, seed=0,
+                            max_steps=200, explore_steps=2, abandon=None,
+                            limits=[np.full(n, 2), np.full(n, 200)])
+    assert all(b == np.inf for call in run.bounds for lane in call for b in lane)

@@ -513,7 +513,8 @@ def test_fit_that_does_not_converge_writes_its_best_point(tmp_path, capsys):
     files = _fit_csvs(tmp_path, n=20)
     out = tmp_path / "result"
     rc = main(["fit", files[0], "--radius", "10e-6", "--model", "relaxed", "--out", str(out),
-               "--quiet", "--no-figure", "--starts", "2", "--max-steps", "1"])
+               "--quiet", "--no-figure", "--starts", "2", "--max-steps", "1",
+               "--abandon", "inf"])
     err = capsys.readouterr().err
     assert rc == EXIT_NOT_CONVERGED == 3, err
     assert "did not converge" in err and "--max-steps 2" in err
@@ -525,6 +526,7 @@ def test_fit_that_does_not_converge_writes_its_best_point(tmp_path, capsys):
     assert "not_converged" in table["flags"] and table["G0_Pa"]["value"] > 0
     assert table["search"]["n_starts"] == 2 and table["search"]["max_steps"] == 1
     assert table["search"]["explore_steps"] == 1  # at most max_steps
+    assert table["search"]["abandon"] is None  # --abandon inf: no start abandoned
     # a map keeps such curves as flagged, not failed
     out = tmp_path / "map"
     rc = main(["fit", *files[:2], "--each", "--radius", "10e-6", "--model", "relaxed",

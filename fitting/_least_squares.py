@@ -116,6 +116,19 @@ class Solution(eqx.Module):
 ABANDON_AFTER = 5
 
 
+def jacobian_of(fn, z, ctx, *, with_model: bool = False):
+    """`(r, J, model)` of the objective `fn` at `z` (`model`: `fn.with_model`'s second
+    output with `with_model`, else None): by `fn.jacobian(z, ctx, with_model)` where the
+    objective brings its own (:func:`fitting._objective.residuals_jacobian`: fewer
+    directions through the model), else by :func:`~fitting._objective.jacobian_fn`."""
+    own = getattr(fn, "jacobian", None)
+    if own is not None:
+        return own(z, ctx, with_model)
+    if with_model:
+        return jacobian_fn(lambda zz: fn.with_model(zz, ctx), has_aux=True)(z)
+    return (*jacobian_fn(lambda zz: fn(zz, ctx))(z), None)
+
+
 class AbstractLeastSquaresSolver(eqx.Module):
     """A solver as `init(fn, z0, ctx) -> state`, `step(fn, state, ctx) -> state`,
     `terminate(state) -> (done, converged)` and `chi2(state)` ($\\sum r^2$)."""
@@ -250,10 +263,10 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     keep_model: bool = eqx.field(static=True, default=False)
 
     def _jac(self, fn, z, ctx):
-        """`(r, J, model)` at `z` (`model` None without `keep_model`)."""
-        if self.keep_model:
-            return jacobian_fn(lambda zz: fn.with_model(zz, ctx), has_aux=True)(z)
-        return (*jacobian_fn(lambda zz: fn(zz, ctx))(z), None)
+        """`(r, J, model)` at `z` (`model` None without `keep_model`): `fn.jacobian`'s
+        where the objective has one (:func:`fitting._objective.residuals_jacobian`), else
+        :func:`~fitting._objective.jacobian_fn` of `fn`."""
+        return jacobian_of(fn, z, ctx, with_model=self.keep_model)
 
     def init(self, fn, z0, ctx):
         # no evaluation here: the state starts at chi2 = inf with J = 0, so the first step
@@ -373,7 +386,7 @@ def _half_ssq(fn, z, ctx):
 
 
 def _half_ssq_fwd(fn, z, ctx):
-    r, J = jacobian_fn(lambda zz: fn(zz, ctx))(z)
+    r, J, _ = jacobian_of(fn, z, ctx)
     return 0.5 * jnp.sum(r * r), (J.T @ r, ctx)
 
 

@@ -48,16 +48,25 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 import jaxcontact as jc
 from jaxcontact._solvers import float64_scope
 
 from ._prepare import CurveBatch
-from ._spec import ModelSpec, build_rheology, force_baseline, offsets, work_of_adhesion
+from ._spec import (
+    ModelSpec,
+    build_rheology,
+    force_baseline,
+    n_material,
+    offsets,
+    stress_scaled,
+    work_of_adhesion,
+)
 
 __all__ = ["predict", "effective_force", "residuals", "residuals_and_model", "ModelAt",
-           "jacobian_fn", "internal_jacobian", "model_solution_at"]
+           "jacobian_fn", "internal_jacobian", "residuals_jacobian", "model_solution_at"]
 
 
 def _predict_one(spec: ModelSpec, p, profile, ts, drive, depth, stiffness):
@@ -113,12 +122,19 @@ def residuals_and_model(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec
     :func:`fitting._spec.force_baseline`), and the contact radius [m], each of shape
     `(C, n)` like ``data.force``."""
     sol = predict(spec, p, data)
-    f0 = force_baseline(spec, p, data.ts)
-    fitted = effective_force(sol, data) + f0
-    r = jnp.sqrt(data.weight) * (fitted - data.force) / data.noise
-    r = r.ravel()
+    return _residuals_of(sol, effective_force(sol, data), force_baseline(spec, p, data.ts),
+                         data)[:2]
+
+
+def _residuals_of(sol, force, f0, data: CurveBatch):
+    """The residuals (flat; a non-finite one is $10^6$), the :class:`ModelAt` and the finite
+    residuals' mask, of the model's solution `sol`, its effective force `force`
+    (:func:`effective_force`) and the fitted baseline `f0`."""
+    fitted = force + f0
+    r = (jnp.sqrt(data.weight) * (fitted - data.force) / data.noise).ravel()
     point = jnp.where(jnp.isfinite(sol.force), sol.force, 0.0) + f0
-    return jnp.where(jnp.isfinite(r), r, 1e6), ModelAt(point, fitted, sol.contact_radius)
+    ok = jnp.isfinite(r)
+    return jnp.where(ok, r, 1e6), ModelAt(point, fitted, sol.contact_radius), ok
 
 
 class ModelAt(NamedTuple):
@@ -164,6 +180,102 @@ def internal_jacobian(spec: ModelSpec, param, u, data: CurveBatch):
         return residuals(param.to_natural(u.at[idx].set(uf)), data, spec)
 
     return jacobian_fn(fn)(u[idx])
+
+
+def residuals_jacobian(spec: ModelSpec):
+    r"""`(z, ctx, with_model) -> (r, J, model)`: the residuals at the free vector `z`
+    (`ctx = (param, data)`), their Jacobian with respect to `z` and, with `with_model`, the
+    :class:`ModelAt` of the same evaluation (else `None`), as :func:`jacobian_fn` gives them,
+    with fewer directions pushed through the forward model:
+
+    - the model force is homogeneous of degree one in the parameters that carry the stress
+      scale ($H$, :func:`fitting._spec.stress_scaled`): in their internal coordinates
+      $u_i = \log p_i$, $\sum_{i\in H} \partial F/\partial u_i = F$ (Euler). When every
+      parameter of $H$ is free, the column of the first of them is $F$ minus the others'
+      (weighted like the residuals), so one direction fewer goes through the model (of the
+      standard model's five with the contact point: a step of the full-history search ~15 %
+      cheaper; ``benchmarks/results/fit_each.md``, "One direction fewer");
+    - the force offset and drift are not inputs of the model: their columns come from the
+      baseline $F_0 + s\,t$ alone.
+
+    The derived column agrees with the model's own to round-off relative to $F$ (tested
+    against :func:`jacobian_fn` on both models); rows of non-finite residuals are 0, as the
+    derivative of their replacement $10^6$ is.
+    """
+    scaled = stress_scaled(spec)
+    n_model = n_material(spec) + 1 + int(spec.contact_offset)
+
+    def jac(z, ctx, with_model: bool = False):
+        param, data = ctx
+        free = list(param.free)
+        k = len(free)
+        # the derived column: the first parameter of H, when all of H is free (in logs)
+        derived = scaled[0] if scaled and all(i in free and param.log[i] for i in scaled) \
+            else None
+        push = [i for i in free if i < n_model and i != derived]
+        base = [i for i in free if i >= n_model]
+        weight = jnp.sqrt(data.weight) / data.noise
+
+        u, du = jax.jvp(param.internal, (z,), (jnp.ones_like(z),))  # u_i depends on z_i only
+
+        def evaluate(uu):
+            p = param.to_natural(uu)
+            sol = predict(spec, p, data)
+            force = effective_force(sol, data)
+            r, model, ok = _residuals_of(sol, force, force_baseline(spec, p, data.ts), data)
+            return r, (model, ok, jnp.where(ok, (weight * force).ravel(), 0.0))
+
+        def with_pushed(up):
+            # u with the pushed parameters from `up` (contiguous runs, static slices)
+            parts, start = [], 0
+            for a, i in enumerate(push):
+                if i > start:
+                    parts.append(u[start:i])
+                parts.append(up[a:a + 1])
+                start = i + 1
+            if start < u.shape[0]:
+                parts.append(u[start:])
+            return jnp.concatenate(parts)
+
+        # the pushed directions in internal coordinates (a saturated logistic, du/dz = 0,
+        # loses no derivative of the model there: the identity needs them all)
+        if push:
+            def along(t):  # (rows of the transposed Jacobian: contiguous, no layout change)
+                return jax.jvp(lambda x: evaluate(with_pushed(x)), (up,), (t,), has_aux=True)
+
+            up = jnp.stack([u[i] for i in push])
+            r, Gt, (model, ok, weighted) = jax.vmap(along, out_axes=(None, 0, None))(
+                jnp.eye(len(push), dtype=up.dtype))
+        else:  # (no free parameter of the model: the offsets' columns alone)
+            r, (model, ok, weighted) = evaluate(u)
+            Gt = jnp.zeros((0, r.shape[0]), r.dtype)
+        # the model's columns, J^T = diag(du/dz) A X, X = [the pushed rows; the weighted
+        # model force] (a product with the lane's own matrix, not a sum of rows: XLA would
+        # fuse the rows' last operations into the sum once per use, or lay X out across
+        # the lanes for a constant one)
+        A = np.zeros((k, len(push) + 1))
+        for a, i in enumerate(push):
+            A[free.index(i), a] = 1.0
+        if derived is not None:  # sum over H of dF/du_i = F
+            A[free.index(derived), -1] = 1.0
+            for i in scaled:
+                if i != derived:
+                    A[free.index(derived), push.index(i)] = -1.0
+        du_free = du[np.asarray(free)]
+        J = ((du_free[:, None] * jnp.asarray(A, r.dtype))
+             @ jnp.concatenate([Gt, weighted[None]], axis=0)).T
+        if base:
+            def baseline(ub):
+                f0 = force_baseline(spec, param.to_natural(ub), data.ts)
+                return jnp.where(ok, (weight * jnp.broadcast_to(f0, data.force.shape)).ravel(),
+                                 0.0)
+
+            mask = np.array([i in base for i in free])
+            B = jax.jacfwd(baseline)(u)[:, np.asarray(free)]  # (cheap: no model)
+            J = J + B * (mask * du_free)[None, :]
+        return r, J, (model if with_model else None)
+
+    return jac
 
 
 @float64_scope

@@ -73,7 +73,13 @@ from . import _programs
 from ._caller import warn_at_caller
 from ._curve import Curve
 from ._least_squares import RESULTS, Solution, run_pool, run_starts
-from ._objective import ModelAt, internal_jacobian, residuals, residuals_and_model
+from ._objective import (
+    ModelAt,
+    internal_jacobian,
+    residuals,
+    residuals_and_model,
+    residuals_jacobian,
+)
 from ._options import (
     POLISHED_POINTS,
     SEARCH_BYTES_PER_RESIDUAL,
@@ -156,6 +162,7 @@ def _fn(spec: ModelSpec):
         return ModelAt(one, one, one)
 
     fn.with_model = with_model
+    fn.jacobian = residuals_jacobian(spec)
     fn.residual_struct = residual_struct
     fn.model_struct = model_struct
     return fn

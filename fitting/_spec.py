@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxcontact as jc
-from jaxcontact._vocabulary import PARAMETERS, column_unit, parameter
+from jaxcontact._vocabulary import PARAMETERS, STRESS_KINDS, column_unit, parameter
 
 from ._host import once_per_object
 
@@ -37,6 +37,7 @@ __all__ = [
     "make_spec",
     "parameter_info",
     "n_material",
+    "stress_scaled",
     "build_rheology",
     "canonical_name",
     "normalise_names",
@@ -324,6 +325,22 @@ def _parameter_info(spec: ModelSpec) -> tuple:
     if spec.force_drift:
         out.append(_info("force_drift"))
     return tuple(out)
+
+
+def stress_scaled(spec: ModelSpec) -> tuple[int, ...]:
+    r"""Vector indices of the parameters that carry the stress scale (moduli, viscosities,
+    $\Delta\gamma$: :data:`jaxcontact._vocabulary.STRESS_KINDS`), in which the model force
+    is homogeneous of degree one,
+    $$F(\lambda p_H;\,p_{\bar H}) = \lambda F(p_H;\,p_{\bar H}),\qquad
+    \sum_{i\in H} p_i\,\frac{\partial F}{\partial p_i} = F$$
+    (Euler), for both models under displacement control; empty under compliant loading
+    (the cantilever's fixed stiffness is a stress scale of its own). The force offset and
+    drift are not among them: they are added to the model force, not inputs of it."""
+    if spec.compliant:
+        return ()
+    n_model = n_material(spec) + 1
+    return tuple(i for i, (_, _, kind) in enumerate(parameter_info(spec)[:n_model])
+                 if kind in STRESS_KINDS)
 
 
 def build_rheology(spec: ModelSpec, p: Float[Array, " p"]):

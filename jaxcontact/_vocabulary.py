@@ -27,7 +27,17 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ["Parameter", "PARAMETERS", "ARM_PATTERN", "parameter", "column_unit"]
+__all__ = ["Parameter", "PARAMETERS", "ARM_PATTERN", "parameter", "column_unit",
+           "STRESS_KINDS"]
+
+#: The kinds whose unit carries the stress scale to the first power (Pa, Pa s, J/m^2 = Pa m):
+#: the models have no other stress scale, so with every parameter of these kinds multiplied
+#: by $\lambda$ (lengths and times kept) the displacements and the contact radius stay and
+#: every stress and force is multiplied by $\lambda$ (the energetic criterion compares
+#: $\Delta\gamma$ with an energy release rate $\propto$ stress$^2$/modulus, both
+#: $\propto\lambda$). A cantilever's stiffness [N/m] is such a scale too: under compliant
+#: loading the force is homogeneous only with it scaled.
+STRESS_KINDS = frozenset({"modulus", "viscosity", "adhesion"})
 
 #: Units as written in column names (no ``/``, no spaces).
 _COLUMN_UNITS = {"Pa s": "Pa_s", "J/m^2": "J_m2", "m/s": "m_s", "N/s": "N_s"}

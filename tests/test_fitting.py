@@ -1080,9 +1080,10 @@ def test_solve_batch_calls_traced_once_after_its_only_trace(monkeypatch):
     kw = dict(workers=2, max_steps=7, keep_jacobian=True)
     _optimise._solve_batch.clear_cache()
     traces, order = [], []
-    real = _optimise.residuals_and_model  # what the pool evaluates (keep_jacobian)
-    monkeypatch.setattr(_optimise, "residuals_and_model",
-                        lambda *a: (traces.append(1), real(*a))[1])
+    from fitting import _objective
+
+    real = _objective.predict  # the forward model, whatever the pool evaluates with it
+    monkeypatch.setattr(_objective, "predict", lambda *a: (traces.append(1), real(*a))[1])
     got = fitting.solve_batch(pb.spec, params, datas, z0s, traced=lambda: order.append(
         len(traces)), **kw)
     assert order == [len(traces)] and len(traces) >= 1

@@ -19,8 +19,9 @@ optimistix returns one.
 
 :class:`LevenbergMarquardt` (default of :func:`fitting.fit`): Marquardt scaling,
 multiplicative damping and a step extension (optionally geodesic acceleration and a bounded
-step), each step one exact forward-mode Jacobian
-(:func:`fitting._objective.jacobian_fn`). It is not `optimistix.LevenbergMarquardt`
+step), each step one exact forward-mode Jacobian (the objective's own,
+:func:`fitting._objective.residuals_jacobian`, with one column from the force's
+homogeneity; else :func:`fitting._objective.jacobian_fn`). It is not `optimistix.LevenbergMarquardt`
 because that one compiled about 4× slower on this objective.
 
 :class:`LBFGS`: `optax.lbfgs` with its zoom line search (strong Wolfe conditions) on the same

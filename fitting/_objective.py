@@ -66,7 +66,8 @@ from ._spec import (
 )
 
 __all__ = ["predict", "effective_force", "residuals", "residuals_and_model", "ModelAt",
-           "jacobian_fn", "internal_jacobian", "residuals_jacobian", "model_solution_at"]
+           "jacobian_fn", "internal_jacobian", "residuals_jacobian", "residuals_of_free",
+           "model_solution_at"]
 
 
 def _predict_one(spec: ModelSpec, p, profile, ts, drive, depth, stiffness):
@@ -276,6 +277,28 @@ def residuals_jacobian(spec: ModelSpec):
         return r, J, (model if with_model else None)
 
     return jac
+
+
+def residuals_of_free(spec: ModelSpec, param, data: CurveBatch):
+    """`z -> r`: the residuals at the free vector `z` of `param` (`param`, `data` fixed),
+    differentiable in forward mode through :func:`residuals_jacobian` (a `jax.custom_jvp`):
+    a JVP, or a `jax.jacfwd` over any number of directions that all enter through `z` (the
+    posterior's whitened coordinates and noise scales, :mod:`fitting._posterior`), costs
+    the one Jacobian, its directions fewer than the free parameters, instead of a pass
+    through the model per direction. Reverse mode is not defined (as for the models)."""
+    jac = residuals_jacobian(spec)
+
+    @jax.custom_jvp
+    def r_of(z):
+        return residuals(param.natural(z), data, spec)
+
+    @r_of.defjvp
+    def _jvp(primals, tangents):
+        (z,), (tz,) = primals, tangents
+        r, J, _ = jac(z, (param, data))
+        return r, J @ tz
+
+    return r_of
 
 
 @float64_scope

@@ -17,7 +17,8 @@ The model
 It starts from the least-squares optimum of :func:`fitting.fit` (its
 :class:`fitting.FitResult`) and reuses the fit's problem as it is: the prepared curves,
 the free parameters and their bounds, the residuals
-(:func:`fitting._objective.residuals`, the one home of the objective). Parameters are
+(:func:`fitting._objective.residuals`, the one home of the objective, differentiated by
+the fit's own Jacobian, :func:`fitting._objective.residuals_of_free`). Parameters are
 sampled in the fit's bounded internal coordinates (:mod:`fitting._parameters`): the
 free vector $z$, $u = l + (h - l)\,\sigma(z)$ with $u = \ln p$ for the positive parameters
 and $u = p/s$ for the offsets (the contact offset $\delta$ [m] when the fit has it), so no
@@ -108,7 +109,7 @@ import numpy as np
 from jaxcontact._validate import plain
 
 from ._caller import warn_at_caller
-from ._objective import predict, residuals
+from ._objective import predict, residuals_of_free
 from ._result import FitResult
 from ._spec import canonical_name, force_baseline
 
@@ -729,8 +730,10 @@ def _potential_fn(ctx: _Context):
     def potential(eta):
         theta = ctx.shift + ctx.chol @ eta
         z, log_s = theta[:k], theta[k:]
-        # the fit's residuals (the one home of the objective), each kept sample once
-        r = residuals(ctx.param.natural(z), ctx.data, ctx.spec).reshape(ctx.inv_w.shape)
+        # the fit's residuals (the one home of the objective), each kept sample once; their
+        # derivative the fit's one Jacobian, whatever the number of directions numpyro
+        # pushes (the noise scales' too)
+        r = residuals_of_free(ctx.spec, ctx.param, ctx.data)(z).reshape(ctx.inv_w.shape)
         chi2 = jnp.sum(ctx.inv_w * r * r, axis=1)  # per curve
         u = ctx.lower + ctx.span * jax.nn.sigmoid(z)
         v = jnp.concatenate([u, log_s])

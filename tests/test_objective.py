@@ -149,3 +149,25 @@ def test_no_stress_scale_under_compliant_loading():
     assert stress_scaled(make_spec("history", compliant=True)) == ()
     assert stress_scaled(make_spec("history")) == (0, 1, 2, 3)
     assert stress_scaled(make_spec("relaxed", "prony:2", contact_offset=True)) == (0, 1, 2, 5)
+
+
+def test_residuals_of_free_differentiate_through_the_one_jacobian(retract_curves):
+    """`residuals_of_free` (the posterior's residuals): a JVP along any direction, and
+    `jax.jacfwd` through a dense change of coordinates with more directions than free
+    parameters (as numpyro's whitened coordinates and noise scales), equal forward mode
+    through every direction."""
+    from fitting._objective import residuals_of_free
+
+    pb = _problem(retract_curves, model="relaxed")
+    fn, ctx, Z, (r0, J0, _), _ = _both(pb)
+    r_of = residuals_of_free(pb.spec, pb.param, pb.data)
+    z, J = Z[1], np.asarray(J0[1])
+    k = z.shape[0]
+    t = jnp.linspace(-1.0, 1.5, k)
+    r, dr = jax.jit(lambda zz, tt: jax.jvp(r_of, (zz,), (tt,)))(z, t)
+    np.testing.assert_allclose(np.asarray(r), np.asarray(r0[1]), rtol=1e-12, atol=1e-12)
+    scale = np.abs(J).max()
+    np.testing.assert_allclose(np.asarray(dr), J @ np.asarray(t), atol=1e-11 * scale)
+    C = np.random.default_rng(0).standard_normal((k, k + 2))  # 2 extra directions
+    got = jax.jit(jax.jacfwd(lambda eta: r_of(z + jnp.asarray(C) @ eta)))(jnp.zeros(k + 2))
+    np.testing.assert_allclose(np.asarray(got), J @ C, atol=1e-11 * scale * np.abs(C).max())

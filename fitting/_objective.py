@@ -122,20 +122,21 @@ def residuals_and_model(p: Float[Array, " p"], data: CurveBatch, spec: ModelSpec
     ($F^\mathrm{eff}$), both with the fitted baseline [N] (the force offset and drift,
     :func:`fitting._spec.force_baseline`), and the contact radius [m], each of shape
     `(C, n)` like ``data.force``."""
+    return _evaluate(p, data, spec)[:2]
+
+
+def _evaluate(p, data: CurveBatch, spec: ModelSpec):
+    """At natural parameters `p`: the residuals (flat; a non-finite one is $10^6$), the
+    :class:`ModelAt`, the finite residuals' mask and the effective force
+    (:func:`effective_force`, without the baseline)."""
     sol = predict(spec, p, data)
-    return _residuals_of(sol, effective_force(sol, data), force_baseline(spec, p, data.ts),
-                         data)[:2]
-
-
-def _residuals_of(sol, force, f0, data: CurveBatch):
-    """The residuals (flat; a non-finite one is $10^6$), the :class:`ModelAt` and the finite
-    residuals' mask, of the model's solution `sol`, its effective force `force`
-    (:func:`effective_force`) and the fitted baseline `f0`."""
+    force = effective_force(sol, data)
+    f0 = force_baseline(spec, p, data.ts)
     fitted = force + f0
     r = (jnp.sqrt(data.weight) * (fitted - data.force) / data.noise).ravel()
     point = jnp.where(jnp.isfinite(sol.force), sol.force, 0.0) + f0
     ok = jnp.isfinite(r)
-    return jnp.where(ok, r, 1e6), ModelAt(point, fitted, sol.contact_radius), ok
+    return jnp.where(ok, r, 1e6), ModelAt(point, fitted, sol.contact_radius), ok, force
 
 
 class ModelAt(NamedTuple):
@@ -220,10 +221,7 @@ def residuals_jacobian(spec: ModelSpec):
         u, du = jax.jvp(param.internal, (z,), (jnp.ones_like(z),))  # u_i depends on z_i only
 
         def evaluate(uu):
-            p = param.to_natural(uu)
-            sol = predict(spec, p, data)
-            force = effective_force(sol, data)
-            r, model, ok = _residuals_of(sol, force, force_baseline(spec, p, data.ts), data)
+            r, model, ok, force = _evaluate(param.to_natural(uu), data, spec)
             return r, (model, ok, jnp.where(ok, (weight * force).ravel(), 0.0))
 
         def with_pushed(up):

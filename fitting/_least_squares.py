@@ -263,12 +263,6 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
     max_step: float = eqx.field(static=True, default=float("inf"))
     keep_model: bool = eqx.field(static=True, default=False)
 
-    def _jac(self, fn, z, ctx):
-        """`(r, J, model)` at `z` (`model` None without `keep_model`): `fn.jacobian`'s
-        where the objective has one (:func:`fitting._objective.residuals_jacobian`), else
-        :func:`~fitting._objective.jacobian_fn` of `fn`."""
-        return jacobian_of(fn, z, ctx, with_model=self.keep_model)
-
     def init(self, fn, z0, ctx):
         # no evaluation here: the state starts at chi2 = inf with J = 0, so the first step
         # is delta = 0 and evaluates r and J at z0 (one copy of the Jacobian in the
@@ -322,7 +316,8 @@ class LevenbergMarquardt(AbstractLeastSquaresSolver):
         # no component of the free vector moves by more than `max_step` in one step
         delta = delta * jnp.minimum(1.0, self.max_step / jnp.maximum(jnp.max(jnp.abs(delta)),
                                                                      1e-300))
-        r_new, J_new, model_new = self._jac(fn, s.z + delta, ctx)
+        r_new, J_new, model_new = jacobian_of(fn, s.z + delta, ctx,
+                                                   with_model=self.keep_model)
         chi2_new = jnp.sum(r_new * r_new)
         ok = jnp.isfinite(chi2_new) & (chi2_new <= s.chi2)
         predicted = -(2.0 * g @ delta + delta @ A @ delta)

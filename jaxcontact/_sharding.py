@@ -150,23 +150,26 @@ def _any_lane_rule(axis_size, in_batched, flag):
     return any_lane(jnp.any(flag, axis=0) if batched else flag), False
 
 
-def switch(index, branches, *operands):
+def switch(index, branches, *operands, masked: bool = True):
     """`jax.lax.switch` (same arguments, same result per lane; `index` clamped to the
     branches as there). Under ``vmap`` a branch runs only where some lane takes it, then
     each lane's own branch is selected; under a mesh with explicit axes every branch is
-    evaluated and the taken one selected (module docstring)."""
+    evaluated and the taken one selected (module docstring). `masked=False`: the branches'
+    inputs keep their derivatives on the lanes that do not take them (one select less per
+    input and tangent direction), for branches whose derivatives are finite on every lane
+    (what a select of all branches, ``vmap``'s own rule, requires of them anyway)."""
     which = jnp.clip(jnp.asarray(index, jnp.int32), 0, len(branches) - 1)
     if not _explicit_mesh():
         if not LANE_BRANCHES:
             return lax.switch(which, branches, *operands)
-        outs = [_lane_branch(which == k, branch, operands) for k, branch in
+        outs = [_lane_branch(which == k, branch, operands, masked) for k, branch in
                 enumerate(branches)]
     else:
         outs = [branch(*operands) for branch in branches]
     return jax.tree.map(lambda *xs: lax.select_n(which, *xs), *outs)
 
 
-def _lane_branch(taken, branch, operands):
+def _lane_branch(taken, branch, operands, masked=True):
     """`branch(*operands)` where some lane takes it (`taken`, per lane), zeros elsewhere
     (module docstring). The branch's inputs, the values it closes over included
     (``jax.closure_convert``), carry no derivative on a lane that does not take it: a
@@ -182,7 +185,9 @@ def _lane_branch(taken, branch, operands):
             return x
         return jnp.where(taken, x, lax.stop_gradient(x))
 
-    args = jax.tree.map(no_derivative_off_lane, (operands, list(consts)))
+    args = (operands, list(consts))
+    if masked:
+        args = jax.tree.map(no_derivative_off_lane, args)
 
     def run(a):
         return converted(*a[0], *a[1])
@@ -195,13 +200,14 @@ def _lane_branch(taken, branch, operands):
     return lax.cond(any_lane(lax.stop_gradient(taken)), run, skipped, args)
 
 
-def cond(pred, true_fun, false_fun, *operands):
+def cond(pred, true_fun, false_fun, *operands, masked: bool = True):
     """`jax.lax.cond` (same arguments, same result per lane), as `switch`: under ``vmap`` a
     branch runs only where some lane takes it; under a mesh with explicit axes both
     branches are evaluated and the taken one selected (module docstring)."""
     if not _explicit_mesh() and not LANE_BRANCHES:
         return lax.cond(pred, true_fun, false_fun, *operands)
-    return switch(jnp.asarray(pred).astype(jnp.int32), (false_fun, true_fun), *operands)
+    return switch(jnp.asarray(pred).astype(jnp.int32), (false_fun, true_fun), *operands,
+                  masked=masked)
 
 
 def searchsorted(a, v, side="left"):

@@ -144,3 +144,74 @@ def test_simulate_vmapped_equals_each_lane_alone():
         assert np.isfinite(grads[k])
         np.testing.assert_allclose(grads[k], grad_(g, offsets[k]), rtol=1e-10)
         np.testing.assert_allclose(grads[k], central, rtol=1e-6)
+
+
+def test_unmasked_branches_keep_every_lanes_values_and_derivatives():
+    # `masked=False` (branches differentiable on every lane): the same values, forward- and
+    # reverse-mode derivatives as lax.switch on each lane alone
+    index = jnp.asarray([0, 2, 1, 0, 2])
+    xs = jnp.linspace(0.2, 1.4, index.size)
+    ys = jnp.linspace(-0.5, 0.7, index.size)
+    br = _branches()
+
+    def ours(i, x, y):
+        return _sharding.switch(i, br, x, y, masked=False)[0]
+
+    jac = jax.vmap(jax.jacfwd(lambda x, y, i: ours(i, x, y), argnums=(0, 1)))(xs, ys, index)
+    grad = jax.vmap(jax.grad(lambda x, y, i: ours(i, x, y), argnums=(0, 1)))(xs, ys, index)
+    got = jax.vmap(ours)(index, xs, ys)
+    for k, (i, x, y) in enumerate(zip(index, xs, ys, strict=True)):
+        want = lax.switch(i, br, x, y)[0]
+        wx, wy = jax.grad(lambda x, y, i=i: lax.switch(i, br, x, y)[0], argnums=(0, 1))(x, y)
+        np.testing.assert_allclose(got[k], want, rtol=1e-14)
+        np.testing.assert_allclose([jac[0][k], jac[1][k], grad[0][k], grad[1][k]],
+                                   [wx, wy, wx, wy], rtol=1e-13)
+
+
+def test_a_history_step_does_the_contacts_work_only_where_some_lane_touches(monkeypatch):
+    # the foundation's step out of contact (before the touch, after the jump-off) skips the
+    # contact's work (the front's branches and the force integral) unless some lane of the
+    # batch is in contact or touches in the step: counted by a host callback inside the
+    # force integral, against the samples where some lane's contact radius is positive
+    # before or after the step
+    from jaxcontact._foundation import _model
+
+    calls = collections.Counter()
+    force = _model._Model.force
+
+    def counted(self, *args):
+        jax.debug.callback(lambda: calls.update(["force"]))
+        return force(self, *args)
+
+    monkeypatch.setattr(_model._Model, "force", counted)
+    ts = jnp.linspace(0.0, 2.0, 50)
+    d = 1.2e-6 * jnp.sin(jnp.pi * ts / 1.4) - 4e-7  # apart, a contact, apart again
+    offsets = jnp.array([0.0, -2e-7, 1e-7])
+
+    def one(off):
+        s = jc.simulate(jc.StandardModel(4e4, 2e4, 1e4), jc.Parabola(1e-5), 1e-3, ts,
+                        d + off, grid=16, throw=False)
+        return s.force, s.contact_radius
+
+    run = jax.jit(jax.vmap(one))
+    # the calls after the time loop (the jump-off's and the largest tension's refinements,
+    # on stand-ins where there is none): a batch that never touches
+    _, a_never = jax.block_until_ready(run(offsets - 2e-6))
+    jax.effects_barrier()
+    assert not np.any(np.asarray(a_never) > 0)
+    after_loop, _ = calls["force"], calls.clear()
+    assert after_loop <= 4
+    f, a = jax.block_until_ready(run(offsets))
+    jax.effects_barrier()
+    touching = np.asarray(a) > 0
+    before = np.concatenate([np.zeros((3, 1), bool), touching[:, :-1]], axis=1)
+    busy = np.any(touching | before, axis=0)
+    assert 0 < int(busy.sum()) < ts.size - 10  # most samples apart on every lane
+    assert calls["force"] == after_loop + int(busy.sum())
+    # out of contact no force; each lane equals its own unbatched history
+    assert np.all(np.asarray(f)[~touching] == 0.0)
+    for k in range(3):
+        fk, ak = jax.jit(one)(offsets[k])
+        np.testing.assert_allclose(f[k], fk, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(a[k], ak, rtol=1e-12, atol=1e-18)
+

@@ -327,9 +327,27 @@ class _Model(eqx.Module):
             return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jump,
                               theta_jump=theta_jump, overflow=jnp.asarray(False))
 
-        new = _sharding.switch(branch, (pinned, advancing, receding), None)
+        def touching(_):
+            new = _sharding.switch(branch, (pinned, advancing, receding), None)
+            F = jnp.where(new.radius > 0, self.force(new.nodes, new.edge[0], new.radius, d1),
+                          0.0)
+            return new, F
+
+        def apart(_):
+            # out of contact before and after the step (the pinned branch at a = 0): the
+            # springs relax load-free and carry no force
+            f = jnp.asarray(False)
+            free = StepBranch(nodes=V_free, edge=jnp.stack([vf_free, vf_free]), radius=a,
+                              jumped=f, theta_jump=jnp.full_like(a, jnp.nan), overflow=f)
+            return free, jnp.zeros_like(a)
+
+        # under vmap the contact's work runs only where some lane is in contact or touches
+        # (on a QI curve most samples are apart on every lane: before the touch, after the
+        # jump-off). Unmasked: `apart` is linear, and `touching` on an apart lane is what
+        # every lane computed before (its branches mask their own inputs)
+        new, F = _sharding.cond(in_contact | (branch != 0), touching, apart, None,
+                                masked=False)
         a_new = new.radius
-        F = jnp.where(a_new > 0, self.force(new.nodes, new.edge[0], a_new, d1), 0.0)
         out = StepOutput(
             force=F, radius=a_new, depth=d1, jumped=new.jumped, theta_jump=new.theta_jump,
             ok=ok, overflow=new.overflow & jnp.logical_not(self.geo.covers_contact),

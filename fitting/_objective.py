@@ -52,6 +52,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxcontact as jc
+from jaxcontact import _sharding
 from jaxcontact._solvers import float64_scope
 
 from ._prepare import CurveBatch
@@ -243,8 +244,9 @@ def residuals_jacobian(spec: ModelSpec):
                 return jax.jvp(lambda x: evaluate(with_pushed(x)), (up,), (t,), has_aux=True)
 
             up = jnp.stack([u[i] for i in push])
-            r, Gt, (model, ok, weighted) = jax.vmap(along, out_axes=(None, 0, None))(
-                jnp.eye(len(push), dtype=up.dtype))
+            with _sharding.forward_only():  # no reverse mode through this trace
+                r, Gt, (model, ok, weighted) = jax.vmap(along, out_axes=(None, 0, None))(
+                    jnp.eye(len(push), dtype=up.dtype))
         else:  # (no free parameter of the model: the offsets' columns alone)
             r, (model, ok, weighted) = evaluate(u)
             Gt = jnp.zeros((0, r.shape[0]), r.dtype)

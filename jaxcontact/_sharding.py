@@ -61,10 +61,21 @@ branch and time step); `jc.sweep` therefore runs each device's slice as a ``shar
 ``JAXCONTACT_LANE_BRANCHES=0`` (read at import) restores ``lax.switch`` (the baseline of
 the benchmarks; tests: ``tests/test_branches.py``).
 
+**Forward mode only.** The masks that keep a branch's infinite derivatives off the lanes
+that do not take it matter in reverse mode only (in forward mode the select of the outputs
+drops those lanes' tangents), and cost a select per input and tangent direction (~9 % of
+the full-history Jacobian of a fit). Inside `forward_only()` the branches traced leave them
+out; a caller uses it around a trace that it differentiates in forward mode only (the
+fitting objective's Jacobian). `compiled` then traces the entry point's body into the
+caller's program, so that no cached nested program without the masks reaches a later trace
+that is differentiated in reverse mode.
+
 With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
 ``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).
 """
 
+import contextlib
+import contextvars
 import os
 
 import jax
@@ -72,12 +83,27 @@ import jax.numpy as jnp
 from jax import lax
 from jax.custom_batching import custom_vmap
 
-__all__ = ["any_lane", "compiled", "cond", "on_mesh", "pick", "scan", "searchsorted", "switch",
-           "while_loop"]
+__all__ = ["any_lane", "compiled", "cond", "forward_only", "on_mesh", "pick", "scan",
+           "searchsorted", "switch", "while_loop"]
 
 #: `switch` and `cond` skip the branches no lane takes (module docstring); ``0`` in the
 #: environment variable ``JAXCONTACT_LANE_BRANCHES`` at import: plain ``lax.switch``.
 LANE_BRANCHES = os.environ.get("JAXCONTACT_LANE_BRANCHES", "1") != "0"
+
+
+_FORWARD_ONLY = contextvars.ContextVar("jaxcontact_forward_only", default=False)
+
+
+@contextlib.contextmanager
+def forward_only():
+    """Within: what is traced is differentiated in forward mode only (module docstring):
+    `switch` and `cond` leave out their reverse-mode masks, `compiled` traces into the
+    caller's program."""
+    token = _FORWARD_ONLY.set(True)
+    try:
+        yield
+    finally:
+        _FORWARD_ONLY.reset(token)
 
 
 def _explicit_mesh() -> bool:
@@ -186,7 +212,7 @@ def _lane_branch(taken, branch, operands, masked=True):
         return jnp.where(taken, x, lax.stop_gradient(x))
 
     args = (operands, list(consts))
-    if masked:
+    if masked and not _FORWARD_ONLY.get():
         args = jax.tree.map(no_derivative_off_lane, args)
 
     def run(a):
@@ -224,8 +250,8 @@ def compiled(jitted, plain):
     """The function to call: `jitted` (its own compiled program, cached), except inside a
     trace under a mesh with explicit axes, where `plain` is traced into the caller's program
     instead (the same operations; jax 0.10's batching rule of a nested ``jit`` re-types its
-    outputs on an empty mesh there)."""
-    return plain if _explicit_mesh() else jitted
+    outputs on an empty mesh there), and inside `forward_only` (module docstring)."""
+    return plain if _explicit_mesh() or _FORWARD_ONLY.get() else jitted
 
 
 def on_mesh(tree):

@@ -215,3 +215,44 @@ def test_a_history_step_does_the_contacts_work_only_where_some_lane_touches(monk
         np.testing.assert_allclose(f[k], fk, rtol=1e-12, atol=1e-18)
         np.testing.assert_allclose(a[k], ak, rtol=1e-12, atol=1e-18)
 
+
+def test_forward_only_traces_leave_values_derivatives_and_later_gradients_alone():
+    # inside `forward_only` (the fitting objective's Jacobian) the branches leave out their
+    # reverse-mode masks: the values and forward-mode derivatives of every lane are the same;
+    # the entry point is traced into the caller's program (no nested program without the
+    # masks is cached), so a later reverse-mode gradient in the same process, lanes in
+    # different branches, is still finite and equals a central difference
+    assert _sharding.compiled("jitted", "plain") == "jitted"
+    with _sharding.forward_only():
+        assert _sharding.compiled("jitted", "plain") == "plain"
+    assert _sharding.compiled("jitted", "plain") == "jitted"
+    ts = jnp.linspace(0.0, 2.0, 60)
+    d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
+    prof = jc.Parabola(1e-5)
+    G0s = jnp.array([2e3, 8e3, 3e4])
+    offsets = jnp.array([0.0, -3e-7, 2e-7])
+
+    def force(G0, off):
+        return jc.simulate(jc.StandardModel(G0, 0.5 * G0, 0.2 * G0), prof, 1e-3, ts,
+                           d + off, grid=16, throw=False).force
+
+    def dforce(G0, off):
+        return jax.jvp(lambda g: force(g, off), (G0,), (jnp.ones_like(G0),))
+
+    with _sharding.forward_only():
+        f_fwd, df_fwd = jax.jit(jax.vmap(dforce))(G0s, offsets)
+    f, df = jax.jit(jax.vmap(dforce))(G0s, offsets)
+    np.testing.assert_allclose(f_fwd, f, rtol=1e-13, atol=1e-22)
+    np.testing.assert_allclose(df_fwd, df, rtol=1e-13, atol=1e-22)
+
+    def work(G0, off):
+        fo = force(G0, off)
+        return jnp.sum(0.5 * (fo[1:41] + fo[:40]) * jnp.diff(d[:41]))
+
+    grads = jax.jit(jax.vmap(jax.grad(work)))(G0s, offsets)
+    work_ = jax.jit(work)
+    for k in range(3):
+        g, h = G0s[k], 1e-6 * G0s[k]
+        central = (work_(g + h, offsets[k]) - work_(g - h, offsets[k])) / (2 * h)
+        assert np.isfinite(grads[k])
+        np.testing.assert_allclose(grads[k], central, rtol=1e-6)

@@ -104,17 +104,22 @@ def test_cond_runs_only_the_taken_side_under_vmap():
     assert dict(counts) == {0: 1}
 
 
+def _three_lanes():
+    """A history (times [s], indentation [m]), a probe, and three lanes' G0 [Pa] and drive
+    offsets [m]: one lane touches later, one never lifts off, so that at one sample the
+    lanes take different branches."""
+    ts = jnp.linspace(0.0, 2.0, 60)
+    d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
+    return ts, d, jc.Parabola(1e-5), jnp.array([2e3, 8e3, 3e4]), jnp.array([0.0, -3e-7, 2e-7])
+
+
 def test_simulate_vmapped_equals_each_lane_alone():
     # lanes in different branches at the same sample (one touches later, one never lifts
     # off): every lane's force, jump-off and derivatives (forward and reverse mode) equal
     # its own unbatched history; the reverse-mode gradient also a central difference (a
     # branch run for another lane's sake has infinite derivatives where it is not taken:
     # without care, 0 x inf = NaN in the gradient of that lane)
-    ts = jnp.linspace(0.0, 2.0, 60)
-    d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
-    prof = jc.Parabola(1e-5)
-    G0s = jnp.array([2e3, 8e3, 3e4])
-    offsets = jnp.array([0.0, -3e-7, 2e-7])
+    ts, d, prof, G0s, offsets = _three_lanes()
 
     def one(G0, off):
         s = jc.simulate(jc.StandardModel(G0, 0.5 * G0, 0.2 * G0), prof, 1e-3, ts, d + off,
@@ -226,11 +231,7 @@ def test_forward_only_traces_leave_values_derivatives_and_later_gradients_alone(
     with _sharding.forward_only():
         assert _sharding.compiled("jitted", "plain") == "plain"
     assert _sharding.compiled("jitted", "plain") == "jitted"
-    ts = jnp.linspace(0.0, 2.0, 60)
-    d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
-    prof = jc.Parabola(1e-5)
-    G0s = jnp.array([2e3, 8e3, 3e4])
-    offsets = jnp.array([0.0, -3e-7, 2e-7])
+    ts, d, prof, G0s, offsets = _three_lanes()
 
     def force(G0, off):
         return jc.simulate(jc.StandardModel(G0, 0.5 * G0, 0.2 * G0), prof, 1e-3, ts,

@@ -66,9 +66,10 @@ that do not take it matter in reverse mode only (in forward mode the select of t
 drops those lanes' tangents), and cost a select per input and tangent direction (~9 % of
 the full-history Jacobian of a fit). Inside `forward_only()` the branches traced leave them
 out; a caller uses it around a trace that it differentiates in forward mode only (the
-fitting objective's Jacobian). `compiled` then traces the entry point's body into the
-caller's program, so that no cached nested program without the masks reaches a later trace
-that is differentiated in reverse mode.
+fitting objective's Jacobian). `compiled` then returns the entry point's forward-mode
+twin: its own nested program with its own cache (a distinct function object), so that no
+cached program without the masks reaches a later trace that is differentiated in reverse
+mode, and a trace that calls the entry point at several places still traces it once.
 
 With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
 ``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).
@@ -76,8 +77,10 @@ With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run 
 
 import contextlib
 import contextvars
+import functools
 import os
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import lax
@@ -246,12 +249,24 @@ def searchsorted(a, v, side="left"):
     return jnp.searchsorted(a, v, side=side, method="compare_all")
 
 
+_FORWARD_TWINS: dict = {}
+
+
 def compiled(jitted, plain):
-    """The function to call: `jitted` (its own compiled program, cached), except inside a
-    trace under a mesh with explicit axes, where `plain` is traced into the caller's program
-    instead (the same operations; jax 0.10's batching rule of a nested ``jit`` re-types its
-    outputs on an empty mesh there), and inside `forward_only` (module docstring)."""
-    return plain if _explicit_mesh() or _FORWARD_ONLY.get() else jitted
+    """The function to call: `jitted` (``eqx.filter_jit(plain)``: its own compiled program,
+    cached), except inside a trace under a mesh with explicit axes, where `plain` is traced
+    into the caller's program instead (the same operations; jax 0.10's batching rule of a
+    nested ``jit`` re-types its outputs on an empty mesh there), and inside `forward_only`,
+    where it is the forward-mode twin of `jitted` (module docstring)."""
+    if _explicit_mesh():
+        return plain
+    if not _FORWARD_ONLY.get():
+        return jitted
+    twin = _FORWARD_TWINS.get(plain)
+    if twin is None:  # a new function object: jit caches its traces apart from `jitted`'s
+        twin = _FORWARD_TWINS.setdefault(
+            plain, eqx.filter_jit(functools.wraps(plain)(lambda *a, **k: plain(*a, **k))))
+    return twin
 
 
 def on_mesh(tree):

@@ -224,13 +224,20 @@ def test_a_history_step_does_the_contacts_work_only_where_some_lane_touches(monk
 def test_forward_only_traces_leave_values_derivatives_and_later_gradients_alone():
     # inside `forward_only` (the fitting objective's Jacobian) the branches leave out their
     # reverse-mode masks: the values and forward-mode derivatives of every lane are the same;
-    # the entry point is traced into the caller's program (no nested program without the
-    # masks is cached), so a later reverse-mode gradient in the same process, lanes in
+    # the entry point is its forward-mode twin (a nested program cached apart from the
+    # entry point's own), so a later reverse-mode gradient in the same process, lanes in
     # different branches, is still finite and equals a central difference
-    assert _sharding.compiled("jitted", "plain") == "jitted"
+    def plain(x):
+        return 2.0 * x
+
+    jitted = jax.jit(plain)
+    assert _sharding.compiled(jitted, plain) is jitted
     with _sharding.forward_only():
-        assert _sharding.compiled("jitted", "plain") == "plain"
-    assert _sharding.compiled("jitted", "plain") == "jitted"
+        twin = _sharding.compiled(jitted, plain)
+        assert twin is not jitted and twin is not plain
+        assert _sharding.compiled(jitted, plain) is twin
+        assert float(twin(1.5)) == 3.0
+    assert _sharding.compiled(jitted, plain) is jitted
     ts, d, prof, G0s, offsets = _three_lanes()
 
     def force(G0, off):

@@ -100,8 +100,8 @@ _FORWARD_ONLY = contextvars.ContextVar("jaxcontact_forward_only", default=False)
 @contextlib.contextmanager
 def forward_only():
     """Within: what is traced is differentiated in forward mode only (module docstring):
-    `switch` and `cond` leave out their reverse-mode masks, `compiled` traces into the
-    caller's program."""
+    `switch` and `cond` leave out their reverse-mode masks, `compiled` returns the entry
+    points' forward-mode twins."""
     token = _FORWARD_ONLY.set(True)
     try:
         yield
@@ -232,7 +232,8 @@ def _lane_branch(taken, branch, operands, masked=True):
 def cond(pred, true_fun, false_fun, *operands, masked: bool = True):
     """`jax.lax.cond` (same arguments, same result per lane), as `switch`: under ``vmap`` a
     branch runs only where some lane takes it; under a mesh with explicit axes both
-    branches are evaluated and the taken one selected (module docstring)."""
+    branches are evaluated and the taken one selected (module docstring). `masked`: as
+    `switch`'s."""
     if not _explicit_mesh() and not LANE_BRANCHES:
         return lax.cond(pred, true_fun, false_fun, *operands)
     return switch(jnp.asarray(pred).astype(jnp.int32), (false_fun, true_fun), *operands,

@@ -60,7 +60,7 @@ from ._spec import (
     ModelSpec,
     build_rheology,
     force_baseline,
-    n_material,
+    n_model_inputs,
     offsets,
     stress_scaled,
     work_of_adhesion,
@@ -206,7 +206,7 @@ def residuals_jacobian(spec: ModelSpec):
     derivative of their replacement $10^6$ is.
     """
     scaled = stress_scaled(spec)
-    n_model = n_material(spec) + 1 + int(spec.contact_offset)
+    n_model = n_model_inputs(spec)
 
     def jac(z, ctx, with_model: bool = False):
         param, data = ctx

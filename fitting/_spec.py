@@ -37,6 +37,7 @@ __all__ = [
     "make_spec",
     "parameter_info",
     "n_material",
+    "n_model_inputs",
     "stress_scaled",
     "build_rheology",
     "canonical_name",
@@ -305,6 +306,13 @@ def n_material(spec: ModelSpec) -> int:
     return len(RHEOLOGIES[spec.rheology].parameters(spec.arms))
 
 
+def n_model_inputs(spec: ModelSpec) -> int:
+    """Number of leading parameters that are inputs of the forward model (the rheology's,
+    the work of adhesion, the contact offset when fitted); the force baseline's (offset,
+    drift) follow them."""
+    return n_material(spec) + 1 + int(spec.contact_offset)
+
+
 def parameter_info(spec: ModelSpec) -> list[tuple[str, str, str]]:
     """(short name, unit, kind) of every parameter, in vector order.
 
@@ -338,8 +346,7 @@ def stress_scaled(spec: ModelSpec) -> tuple[int, ...]:
     drift are not among them: they are added to the model force, not inputs of it."""
     if spec.compliant:
         return ()
-    n_model = n_material(spec) + 1
-    return tuple(i for i, (_, _, kind) in enumerate(parameter_info(spec)[:n_model])
+    return tuple(i for i, (_, _, kind) in enumerate(parameter_info(spec)[:n_model_inputs(spec)])
                  if kind in STRESS_KINDS)
 
 
@@ -357,7 +364,7 @@ def offsets(spec: ModelSpec, p: Float[Array, " p"]):
     """`(contact_offset, force_offset)` of natural parameters `p` (0 when not fitted)."""
     k = n_material(spec) + 1
     delta = p[k] if spec.contact_offset else jnp.zeros((), p.dtype)
-    f0 = p[k + int(spec.contact_offset)] if spec.force_offset else jnp.zeros((), p.dtype)
+    f0 = p[n_model_inputs(spec)] if spec.force_offset else jnp.zeros((), p.dtype)
     return delta, f0
 
 
@@ -369,8 +376,7 @@ def force_baseline(spec: ModelSpec, p: Float[Array, " p"], ts):
     _, f0 = offsets(spec, p)
     if not spec.force_drift:
         return f0
-    k = n_material(spec) + 1 + int(spec.contact_offset) + int(spec.force_offset)
-    return f0 + p[k] * ts
+    return f0 + p[n_model_inputs(spec) + int(spec.force_offset)] * ts
 
 
 def canonical_name(name: str, names: Sequence[str]) -> str:

@@ -88,7 +88,7 @@ import jaxcontact as jc
 from ._curve import Curve
 from ._host import once_per_object
 from ._parameters import free_to_internal, internal_to_free
-from ._spec import ModelSpec, n_material, parameter_info, rheology_kind, rheology_name
+from ._spec import ModelSpec, n_model_inputs, parameter_info, rheology_kind, rheology_name
 
 __all__ = ["DataScales", "data_scales", "initial_guess", "default_bounds", "search_starts",
            "search_points",
@@ -513,5 +513,4 @@ def nested_starts(spec: ModelSpec, simpler: ModelSpec, p: Mapping[str, float],
 
 def n_search_dims(spec: ModelSpec) -> int:
     """Number of free directions of a search (for sizing the default number of starts)."""
-    return (n_material(spec) + 1 + int(spec.contact_offset) + int(spec.force_offset)
-            + int(spec.force_drift))
+    return n_model_inputs(spec) + int(spec.force_offset) + int(spec.force_drift)

@@ -33,6 +33,27 @@ __all__ = [
 ]
 
 
+def arms_sum(x, w):
+    r"""$\sum_k x_{\ldots k} w_k$: a contraction over the arms' (last) axis.
+
+    Shapes: `x` (..., N), `w` (N,) → (...). Written as a product and a sum rather than a
+    matrix product: the arms are few (N = 1 for the standard model), and XLA's CPU
+    backend lays a small `dot` out by transposes and copies of its operands and their
+    tangents, which cost more than the arithmetic in the foundation's time step.
+    """
+    x = jnp.asarray(x)
+    return jnp.sum(x * jnp.asarray(w)[(None,) * (x.ndim - 1)], axis=-1)
+
+
+def arms_apply(P, x):
+    r"""$x P^\top$, i.e. $y_{\ldots i} = \sum_j P_{ij} x_{\ldots j}$, over the arms' axis.
+
+    Shapes: `P` (N, N), `x` (..., N) → (..., N); a product and a sum, as `arms_sum`.
+    """
+    x = jnp.asarray(x)
+    return jnp.sum(x[..., None, :] * jnp.asarray(P)[(None,) * (x.ndim - 1)], axis=-1)
+
+
 def phi(x):
     r"""$\phi(x) = (1 - e^{-x})/x$ for $x \ge 0$, with the limit $\phi(0) = 1$."""
     safe = jnp.where(x > 0, x, 1.0)

@@ -22,7 +22,7 @@ import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._arms import attached_update, states_samples, states_velocity
+from ._arms import arms_apply, attached_update, states_samples, states_velocity
 from ._solvers import safe_div
 
 __all__ = ["AbstractMethod", "DiffraxODE", "ExactUpdate"]
@@ -79,7 +79,7 @@ class ExactUpdate(AbstractMethod):
 
     def propagate(self, V, g_points, t0, t1, d0, d1, P, tau, A):
         V_att = attached_update(V, d0 - g_points, d1 - d0, t1 - t0, tau)
-        return V_att, V @ P.T, jnp.asarray(True)
+        return V_att, arms_apply(P, V), jnp.asarray(True)
 
 
 class DiffraxODE(AbstractMethod):

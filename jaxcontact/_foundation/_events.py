@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from .._arms import attached_update, decay
+from .._arms import arms_sum, attached_update, decay
 from .._root import bracketed_root
 from .._sharding import pick, searchsorted
 from .._solvers import (
@@ -98,7 +98,7 @@ def _fold_radius(model, cells, a, d, fallback):
     """
     valid = cells.valid
     R_nodes = jnp.where(valid, cells.R_nodes, -jnp.inf)
-    Gs = cells.s_lo @ model.Gk
+    Gs = arms_sum(cells.s_lo, model.Gk)
     j = jnp.argmax(R_nodes)
     m = jnp.maximum(jnp.sum(valid) - 1, 0)
     Gs_front = jnp.sum(model.Gk * pick(cells.s_hi, m))
@@ -253,7 +253,7 @@ def _instability_radius(model, cells, a, d0, dt, theta, k, fallback):
     P = jnp.sum(model.Gk * ps)
     B0 = -d0 * jnp.sum(model.Gk * m1)
     den = model.Gg - P
-    S_nodes = (cells.s_lo * e[None, :]) @ model.Gk
+    S_nodes = arms_sum(cells.s_lo * e[None, :], model.Gk)
     m = jnp.maximum(jnp.sum(cells.valid) - 1, 0)  # last node in contact
     S_front = jnp.sum(model.Gk * e * pick(cells.s_hi, m))
     xs = lax.stop_gradient(fallback)

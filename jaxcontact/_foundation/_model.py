@@ -8,7 +8,7 @@ from jax import lax
 from jaxtyping import Array
 
 from .. import _sharding
-from .._arms import attached_update
+from .._arms import arms_apply, arms_sum, attached_update
 from .._criteria import line_load_coefficient
 from .._method import AbstractMethod
 from .._profiles import TouchCoordinate
@@ -136,8 +136,8 @@ class _Model(eqx.Module):
         s_hi = jnp.where(up_node[:, None], s_next, s_front[None, :])
         dz = z_hi - self.zx
         slope = safe_div(s_hi - s_nodes, dz[:, None])
-        Gs = s_nodes @ self.Gk
-        Gm = slope @ self.Gk
+        Gs = arms_sum(s_nodes, self.Gk)
+        Gm = arms_sum(slope, self.Gk)
         alpha = 4.0 * (self.Gg * d - Gs + Gm * self.zx)
         beta = 4.0 * (self.Gi_g + Gm)
         R_nodes = 4.0 * (self.Gg * d - self.Gi_g * self.zx - Gs) + self.c * self.sqrt_x
@@ -152,7 +152,7 @@ class _Model(eqx.Module):
     def force(self, V, vf, a, d):
         r"""$F = 8[G_g a d - G_\infty\int_0^a g - \sum_k G_k\int_0^a s_k]$ [N]."""
         x = self.x
-        Gs = (V + self.gx[:, None]) @ self.Gk
+        Gs = arms_sum(V + self.gx[:, None], self.Gk)
         Gs_next = jnp.concatenate([Gs[1:], Gs[-1:]])
         Gs_front = jnp.sum(self.Gk * (vf + self.geo.g(a)))
         valid = x < a
@@ -251,7 +251,7 @@ class _Model(eqx.Module):
             z_hi = self.zx[1:]
             v_lo = jnp.where(beyond[:, None], V_free[:-1], vf_free[None, :])
             v_hi = V_free[1:]
-            phi_nodes = d1 - gx - V_free @ arm_ratio
+            phi_nodes = d1 - gx - arms_sum(V_free, arm_ratio)
             phi_lo = jnp.where(beyond, phi_nodes[:-1], phi_edge)
             phi_hi = phi_nodes[1:]
             stop = (x_hi_n > a) & (phi_hi < 0)
@@ -263,7 +263,7 @@ class _Model(eqx.Module):
             a_root = self.geo.zeta_inverse(z_star, pick(x_lo, j), pick(x_hi_n, j))
             a_new = jnp.where(exists, a_root, self.L)
             # springs touched during the step: free until theta, attached afterwards
-            phi0 = d0 - gx - V @ arm_ratio
+            phi0 = d0 - gx - arms_sum(V, arm_ratio)
             theta = jnp.where(phi0 >= 0, 0.0, jnp.clip(safe_div(phi0, phi0 - phi_nodes), 0, 1))
             v_theta = V + theta[:, None] * (V_free - V)
             V_touch = attached_update(
@@ -318,7 +318,7 @@ class _Model(eqx.Module):
             theta = jnp.where(jump, theta_jump, theta_front)
             theta = jnp.where(jnp.isfinite(theta), theta, 1.0)
             v_theta = attached_update(V, d0 - gx, theta * dd, theta * dt, self.tau)
-            V_rel = v_theta + (1 - theta)[:, None] * (v_theta @ P.T - v_theta)
+            V_rel = v_theta + (1 - theta)[:, None] * (arms_apply(P, v_theta) - v_theta)
             V_new = jnp.where(
                 (x < a_new)[:, None], V_att, jnp.where((x < a)[:, None], V_rel, V_free)
             )

@@ -531,7 +531,11 @@ def test_vmap_and_result_codes():
     np.testing.assert_array_equal(np.asarray(sols.result == RES.detached), [True, True, False])
     np.testing.assert_array_equal(np.asarray(sols.result == RES.invalid_displacement), [0, 0, 1])
     single = _sim(_solid(1e5), PARABOLA, DGAMMA, ts, d, grid=16)  # throw=True: no error
-    np.testing.assert_allclose(np.asarray(sols.force[1]), np.asarray(single.force), rtol=1e-13)
+    # a lane equals its own run to round-off of the force's scale (near the touch and the
+    # jump-off the force is a difference of terms of that scale, summed in another order)
+    scale = float(np.max(np.abs(np.asarray(single.force))))
+    np.testing.assert_allclose(np.asarray(sols.force[1]), np.asarray(single.force), rtol=1e-13,
+                               atol=1e-13 * scale)
     with pytest.raises(Exception, match="displacement"):
         _sim(_solid(1e5), PARABOLA, DGAMMA, ts, dd[2], grid=16).force.block_until_ready()
 

@@ -20,6 +20,15 @@ from ._state import Cells, FoundationState, StepBranch, StepOutput
 _ROOT_STEPS = 16
 
 
+def _upper_weight(h, dz, num):
+    r"""The weight of a cell's upper end in $\int S\,dx$ over the cell, for $S$ linear in
+    $\zeta$: $\int (\zeta - \zeta_\mathrm{lo})\,dx / \Delta\zeta$ = `num / dz` (`num`:
+    $\int\zeta\,dx - \zeta_\mathrm{lo} h$), the trapezoid's $h/2$ where $\Delta\zeta = 0$;
+    the lower end's is $h$ minus it. Shapes broadcast."""
+    pos = dz > 0
+    return jnp.where(pos, num / jnp.where(pos, dz, 1.0), 0.5 * h)
+
+
 class _Model(eqx.Module):
     r"""The constants of one simulation of the foundation model and its step (built inside
     the traced function, closed over by the loop); the in-step events are the functions of
@@ -40,6 +49,10 @@ class _Model(eqx.Module):
       `L`: the last node; `gx`, `zx`, `Zx`, `sqrt_x`: $g$, $\zeta$, $\int\zeta$ and
       $\sqrt x$ at the nodes; `x_next`, `z_next`, `Z_next`: the same at the next node (the
       last: $\infty$ and repeated);
+    - `w_lo`, `w_hi`: the weights of a whole cell $[x_j, x_{j+1}]$ in the force integral,
+      $\int_{x_j}^{x_{j+1}} S\,dx = w_{\mathrm{lo},j} S_j + w_{\mathrm{hi},j} S_{j+1}$ for
+      $S$ linear in $\zeta$ (`force`); `w_hi` shifted by one node (the weight of node
+      $j$ as the upper end of cell $j-1$; 0 at node 0), both 0 at the last node;
     - `method`: the `AbstractMethod` of the dashpots' update.
     """
 
@@ -62,6 +75,8 @@ class _Model(eqx.Module):
     x_next: Array
     z_next: Array
     Z_next: Array
+    w_lo: Array
+    w_hi: Array
     method: AbstractMethod
 
     def __init__(self, rheology, profile, work_of_adhesion, x_nodes, method):
@@ -92,6 +107,13 @@ class _Model(eqx.Module):
         self.x_next = jnp.concatenate([x_nodes[1:], inf])
         self.z_next = jnp.concatenate([self.zx[1:], self.zx[-1:]])
         self.Z_next = jnp.concatenate([self.Zx[1:], self.Zx[-1:]])
+        # a whole cell's weights in the force integral (`_cell_weights`), fixed by the grid
+        h = x_nodes[1:] - x_nodes[:-1]
+        w_up = _upper_weight(h, self.zx[1:] - self.zx[:-1], self.Zx[1:] - self.Zx[:-1]
+                             - self.zx[:-1] * h)
+        zero = jnp.zeros((1,), dtype=x_nodes.dtype)
+        self.w_lo = jnp.concatenate([h - w_up, zero])
+        self.w_hi = jnp.concatenate([zero, w_up])
         self.method = method
 
     def free_propagator(self, h):
@@ -150,20 +172,27 @@ class _Model(eqx.Module):
         return alpha - beta * self.geo.zeta(x) + self.c * self.sqrt(x)
 
     def force(self, V, vf, a, d):
-        r"""$F = 8[G_g a d - G_\infty\int_0^a g - \sum_k G_k\int_0^a s_k]$ [N]."""
-        x = self.x
+        r"""$F = 8[G_g a d - G_\infty\int_0^a g - \sum_k G_k\int_0^a s_k]$ [N].
+
+        $S = \sum_k G_k s_k$ is linear in $\zeta$ on each cell, so its integral over a whole
+        cell $[x_j, x_{j+1}] \subset [0, a]$ is $w_{\mathrm{lo},j} S_j + w_{\mathrm{hi},j}
+        S_{j+1}$ with weights fixed by the grid (`w_lo`, `w_hi`), and over the front's cell
+        $[x_m, a]$ the same with weights of $a$. Node $j$'s weight is the sum of its two
+        cells' (a select of constants per node: no derivative of $a$ reaches the nodes, and
+        the forward-mode Jacobian's directions cost one product a node).
+        """
         Gs = arms_sum(V + self.gx[:, None], self.Gk)
-        Gs_next = jnp.concatenate([Gs[1:], Gs[-1:]])
+        whole = self.x_next < a  # cell j lies in the contact
+        after_whole = jnp.concatenate([jnp.zeros((1,), bool), whole[:-1]])
+        weight = jnp.where(whole, self.w_lo, 0.0) + jnp.where(after_whole, self.w_hi, 0.0)
+        # the front's cell [x_m, a]: m the last node in contact (node 0 where a = 0)
+        m = jnp.maximum(jnp.sum(self.x < a) - 1, 0)
+        x_m, z_m, Z_m = pick(self.x, m), pick(self.zx, m), pick(self.Zx, m)
+        h = a - x_m
+        w_up = _upper_weight(h, self.geo.zeta(a) - z_m,
+                             self.geo.zeta_integral(a) - Z_m - z_m * h)
         Gs_front = jnp.sum(self.Gk * (vf + self.geo.g(a)))
-        valid = x < a
-        up_node = self.x_next < a
-        h = jnp.where(valid, jnp.where(up_node, self.x_next, a) - x, 0.0)
-        dz = jnp.where(valid, jnp.where(up_node, self.z_next, self.geo.zeta(a)) - self.zx, 0.0)
-        Z_hi = jnp.where(up_node, self.Z_next, self.geo.zeta_integral(a))
-        num = jnp.where(valid, Z_hi - self.Zx - self.zx * h, 0.0)
-        w = jnp.where(dz > 0, num / jnp.where(dz > 0, dz, 1.0), 0.5 * h)
-        Gs_hi = jnp.where(up_node, Gs_next, Gs_front)
-        int_Gs = jnp.sum(jnp.where(valid, Gs * h + (Gs_hi - Gs) * w, 0.0))
+        int_Gs = jnp.sum(Gs * weight) + pick(Gs, m) * (h - w_up) + Gs_front * w_up
         return 8.0 * (self.Gg * a * d - self.Gi * self.geo.integral_g(a) - int_Gs)
 
     def max_criterion(self, cells, a):

@@ -15,7 +15,7 @@ from .._profiles import TouchCoordinate
 from .._root import concave_root
 from .._sharding import pick
 from .._solvers import safe_div
-from ._state import Cells, FoundationState, StepBranch, StepOutput
+from ._state import Cells, FoundationState, StepBranch, StepEnd, StepOutput
 
 _ROOT_STEPS = 16
 
@@ -264,32 +264,31 @@ class _Model(eqx.Module):
         advance = jnp.logical_not(recede) & (phi_edge > 0) & (a < self.L)
         branch = jnp.where(recede, 2, jnp.where(advance, 1, 0))
 
+        nan = jnp.asarray(jnp.nan, dtype=a.dtype)
+        no = jnp.asarray(False)
+
         def pinned(_):
-            V_new = jnp.where((x < a)[:, None], V_att, V_free)
             E_new = jnp.stack([jnp.where(in_contact, vf_att, V_free[0]), vf_free])
-            nan = jnp.asarray(jnp.nan, dtype=a.dtype)
-            return StepBranch(nodes=V_new, edge=E_new, radius=a, jumped=jnp.asarray(False),
-                              theta_jump=nan, overflow=jnp.asarray(False))
+            return StepBranch(inner=a, outer=a, swept=jnp.zeros_like(V), edge=E_new, radius=a,
+                              jumped=no, theta_jump=nan, overflow=no)
 
         def advancing(_):
-            # free side: cells [max(x_j, a), x_{j+1}] for x_{j+1} > a, v linear in zeta
-            x_lo_n, x_hi_n = x[:-1], x[1:]
-            beyond = x_lo_n > a
-            x_lo = jnp.where(beyond, x_lo_n, a)
-            z_lo = jnp.where(beyond, self.zx[:-1], self.geo.zeta(a))
-            z_hi = self.zx[1:]
-            v_lo = jnp.where(beyond[:, None], V_free[:-1], vf_free[None, :])
-            v_hi = V_free[1:]
+            # free side: cells [max(x_j, a), x_{j+1}] for x_{j+1} > a, v linear in zeta; the
+            # front stops in the first such cell whose upper node is not reached (phi < 0)
             phi_nodes = d1 - gx - arms_sum(V_free, arm_ratio)
-            phi_lo = jnp.where(beyond, phi_nodes[:-1], phi_edge)
-            phi_hi = phi_nodes[1:]
-            stop = (x_hi_n > a) & (phi_hi < 0)
+            stop = (x[1:] > a) & (phi_nodes[1:] < 0)
             exists = jnp.any(stop)
             j = jnp.argmax(stop)
-            frac = safe_div(pick(phi_lo, j), pick(phi_lo, j) - pick(phi_hi, j))
+            # cell j from max(x_j, a) (the edge where x_j <= a) to x_{j+1}
+            beyond = pick(x, j) > a
+            phi_lo = jnp.where(beyond, pick(phi_nodes, j), phi_edge)
+            phi_hi = pick(phi_nodes, j + 1)
+            frac = safe_div(phi_lo, phi_lo - phi_hi)
             frac = jnp.clip(jnp.where(exists, frac, 1.0), 0.0, 1.0)
-            z_star = pick(z_lo, j) + frac * (pick(z_hi, j) - pick(z_lo, j))
-            a_root = self.geo.zeta_inverse(z_star, pick(x_lo, j), pick(x_hi_n, j))
+            z_lo = jnp.where(beyond, pick(self.zx, j), self.geo.zeta(a))
+            z_star = z_lo + frac * (pick(self.zx, j + 1) - z_lo)
+            a_root = self.geo.zeta_inverse(z_star, jnp.where(beyond, pick(x, j), a),
+                                           pick(x, j + 1))
             a_new = jnp.where(exists, a_root, self.L)
             # springs touched during the step: free until theta, attached afterwards
             phi0 = d0 - gx - arms_sum(V, arm_ratio)
@@ -298,16 +297,12 @@ class _Model(eqx.Module):
             V_touch = attached_update(
                 v_theta, d0 + theta * dd - gx, (1 - theta) * dd, (1 - theta) * dt, self.tau
             )
-            V_new = jnp.where(
-                (x < a)[:, None], V_att, jnp.where((x < a_new)[:, None], V_touch, V_free)
-            )
             # the contact covers the whole grid (the flat punch): the edge is the last node
-            v_j = pick(v_lo, j)
-            vf_new = jnp.where(exists, v_j + frac * (pick(v_hi, j) - v_j), V_touch[-1])
-            nan = jnp.asarray(jnp.nan, dtype=a.dtype)
+            v_lo = jnp.where(beyond, pick(V_free, j), vf_free)
+            vf_new = jnp.where(exists, v_lo + frac * (pick(V_free, j + 1) - v_lo), V_touch[-1])
             E_new = jnp.stack([vf_new, vf_new])
-            return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jnp.asarray(False),
-                              theta_jump=nan, overflow=jnp.logical_not(exists))
+            return StepBranch(inner=a, outer=a_new, swept=V_touch, edge=E_new, radius=a_new,
+                              jumped=no, theta_jump=nan, overflow=jnp.logical_not(exists))
 
         def receding(_):
             cells = self.attached_cells(V_att, vf_att, a, d1)
@@ -348,26 +343,25 @@ class _Model(eqx.Module):
             theta = jnp.where(jnp.isfinite(theta), theta, 1.0)
             v_theta = attached_update(V, d0 - gx, theta * dd, theta * dt, self.tau)
             V_rel = v_theta + (1 - theta)[:, None] * (arms_apply(P, v_theta) - v_theta)
-            V_new = jnp.where(
-                (x < a_new)[:, None], V_att, jnp.where((x < a)[:, None], V_rel, V_free)
-            )
-            vf_new = jnp.where(jump, V_new[0], s_edge - self.geo.g(root))
+            # a jump-off releases every spring (node 0 included: x_0 = 0 < a)
+            vf_new = jnp.where(jump, V_rel[0], s_edge - self.geo.g(root))
             E_new = jnp.stack([vf_new, vf_new])
-            return StepBranch(nodes=V_new, edge=E_new, radius=a_new, jumped=jump,
-                              theta_jump=theta_jump, overflow=jnp.asarray(False))
+            return StepBranch(inner=a_new, outer=a, swept=V_rel, edge=E_new, radius=a_new,
+                              jumped=jump, theta_jump=theta_jump, overflow=no)
 
         def touching(_):
             new = _sharding.switch(branch, (pinned, advancing, receding), None)
-            F = jnp.where(new.radius > 0, self.force(new.nodes, new.edge[0], new.radius, d1),
-                          0.0)
-            return new, F
+            V_new = jnp.where((x < new.inner)[:, None], V_att,
+                              jnp.where((x < new.outer)[:, None], new.swept, V_free))
+            F = jnp.where(new.radius > 0, self.force(V_new, new.edge[0], new.radius, d1), 0.0)
+            return StepEnd(nodes=V_new, edge=new.edge, radius=new.radius, jumped=new.jumped,
+                           theta_jump=new.theta_jump, overflow=new.overflow), F
 
         def apart(_):
             # out of contact before and after the step (the pinned branch at a = 0): the
             # springs relax load-free and carry no force
-            f = jnp.asarray(False)
-            free = StepBranch(nodes=V_free, edge=jnp.stack([vf_free, vf_free]), radius=a,
-                              jumped=f, theta_jump=jnp.full_like(a, jnp.nan), overflow=f)
+            free = StepEnd(nodes=V_free, edge=jnp.stack([vf_free, vf_free]), radius=a,
+                           jumped=no, theta_jump=nan, overflow=no)
             return free, jnp.zeros_like(a)
 
         # under vmap the contact's work runs only where some lane is in contact or touches

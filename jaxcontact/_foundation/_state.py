@@ -44,13 +44,30 @@ class StepStart(eqx.Module):
 
 
 class StepBranch(eqx.Module):
-    """The new state of one branch of a step (pinned, advancing or receding edge).
+    r"""The end of one branch of a step (pinned, advancing or receding edge).
 
-    **Fields:** `nodes` `(n_nodes, N)`, `edge` `(2, N)` [m] and `radius` [m] at the end of
-    the step; `jumped` (the contact jumped off in the step); `theta_jump` (the step fraction
-    of that jump-off from the criterion, `nan` without); `overflow` (the contact outgrew the
-    grid).
+    **Fields:** `inner`, `outer` [m]: the nodes at $x$ < `inner` were attached over the whole
+    step, those at `inner` $\le x <$ `outer` were swept by the front during it and end at
+    `swept` `(n_nodes, N)` [m] (read there only), the others were free (pinned: `inner` =
+    `outer` = $a$; advancing: $a$ and the new radius; receding: the new radius and $a$);
+    `edge` `(2, N)` [m] and `radius` [m] at the end of the step; `jumped` (the contact
+    jumped off in the step); `theta_jump` (the step fraction of that jump-off from the
+    criterion, `nan` without); `overflow` (the contact outgrew the grid).
     """
+
+    inner: Float[Array, ""]
+    outer: Float[Array, ""]
+    swept: Float[Array, "nodes arms"]
+    edge: Float[Array, "2 arms"]
+    radius: Float[Array, ""]
+    jumped: Bool[Array, ""]
+    theta_jump: Float[Array, ""]
+    overflow: Bool[Array, ""]
+
+
+class StepEnd(eqx.Module):
+    """The state at the end of a step and its events: `nodes` `(n_nodes, N)`, and the
+    fields of `StepBranch` after `swept`."""
 
     nodes: Float[Array, "nodes arms"]
     edge: Float[Array, "2 arms"]

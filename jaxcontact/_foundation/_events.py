@@ -39,12 +39,10 @@ def refine_jumpoff(model, pre):
     # the cell of the maximum at the end of the step (no derivative needed for the choice)
     V1 = attached_update(V, d0 - model.gx, dd, dt, model.tau)
     vf1 = attached_update(vf, d0 - ga, dd, dt, model.tau)
-    cells1 = model.attached_cells(V1, vf1, a, d1)
-    cell = lax.stop_gradient(model.max_criterion(cells1, a)[2])
-    cells0 = model.attached_cells(V, vf, a, d0)
-    s_lo0, slope0 = pick(cells0.s_lo, cell), pick(cells0.slope, cell)
-    z_lo = pick(cells0.z_lo, cell)
-    lo, hi = pick(cells0.x_lo, cell), pick(cells0.x_hi, cell)
+    cell = lax.stop_gradient(model.max_criterion(V1, vf1, a, d1)[2])
+    cell0 = model.cell(V, vf, a, d0, cell)
+    s_lo0, slope0, z_lo = cell0.s_lo, cell0.slope, cell0.z_lo
+    lo, hi = cell0.x_lo, cell0.x_hi
 
     def coefficients(theta):
         e, m1, ps = decay(jnp.asarray(theta * dt) / model.tau)

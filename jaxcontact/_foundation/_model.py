@@ -145,27 +145,41 @@ class _Model(eqx.Module):
 
         Cell $j$ is $[x_j, \min(x_{j+1}, a)]$ (valid where $x_j < a$); inside it
         $R(x) = \alpha_j - \beta_j\zeta(x) + c\sqrt{x}$. Returns the per-cell arrays as
-        `Cells`.
+        `Cells`, shape `(n_nodes,)` (`(n_nodes, N)` for `s_lo`, `s_hi`, `slope`).
         """
-        x = self.x
         s_nodes = V + self.gx[:, None]
         s_next = jnp.concatenate([s_nodes[1:], s_nodes[-1:]], axis=0)
-        s_front = vf + self.geo.g(a)
-        valid = x < a
-        up_node = self.x_next < a
-        x_hi = jnp.where(up_node, self.x_next, a)
-        z_hi = jnp.where(up_node, self.z_next, self.geo.zeta(a))
-        s_hi = jnp.where(up_node[:, None], s_next, s_front[None, :])
-        dz = z_hi - self.zx
-        slope = safe_div(s_hi - s_nodes, dz[:, None])
-        Gs = arms_sum(s_nodes, self.Gk)
+        return self._cells(self.x, self.x_next, self.zx, self.z_next, s_nodes, s_next,
+                           vf + self.geo.g(a), a, d)
+
+    def cell(self, V, vf, a, d, j):
+        """Cell `j` of `attached_cells` alone (the same values), for an integer index `j` of
+        any shape: `Cells` of shape `j.shape` (`j.shape + (N,)` for `s_lo`, `s_hi`,
+        `slope`). A step reads a few cells: picking their inputs leaves the others' work
+        (and its derivatives) out."""
+        j = jnp.asarray(j)
+        up = jnp.minimum(j + 1, self.n_nodes - 1)
+        s_lo = pick(V, j) + pick(self.gx, j)[..., None]
+        s_next = pick(V, up) + pick(self.gx, up)[..., None]
+        return self._cells(pick(self.x, j), pick(self.x_next, j), pick(self.zx, j),
+                           pick(self.z_next, j), s_lo, s_next, vf + self.geo.g(a), a, d)
+
+    def _cells(self, x_lo, x_next, z_lo, z_next, s_lo, s_next, s_front, a, d):
+        # the formula of `attached_cells` on gathered inputs (one home for both)
+        up_node = x_next < a
+        x_hi = jnp.where(up_node, x_next, a)
+        z_hi = jnp.where(up_node, z_next, self.geo.zeta(a))
+        s_hi = jnp.where(up_node[..., None], s_next, jnp.broadcast_to(s_front, s_next.shape))
+        dz = z_hi - z_lo
+        slope = safe_div(s_hi - s_lo, dz[..., None])
+        Gs = arms_sum(s_lo, self.Gk)
         Gm = arms_sum(slope, self.Gk)
-        alpha = 4.0 * (self.Gg * d - Gs + Gm * self.zx)
+        alpha = 4.0 * (self.Gg * d - Gs + Gm * z_lo)
         beta = 4.0 * (self.Gi_g + Gm)
-        R_nodes = 4.0 * (self.Gg * d - self.Gi_g * self.zx - Gs) + self.c * self.sqrt_x
+        R_nodes = 4.0 * (self.Gg * d - self.Gi_g * z_lo - Gs) + self.c * jnp.sqrt(x_lo)
         return Cells(
-            valid=valid, up_node=up_node, x_lo=x, x_hi=x_hi, z_lo=self.zx, z_hi=z_hi, dz=dz,
-            s_lo=s_nodes, s_hi=s_hi, slope=slope, alpha=alpha, beta=beta, R_nodes=R_nodes,
+            valid=x_lo < a, up_node=up_node, x_lo=x_lo, x_hi=x_hi, z_lo=z_lo, z_hi=z_hi,
+            dz=dz, s_lo=s_lo, s_hi=s_hi, slope=slope, alpha=alpha, beta=beta, R_nodes=R_nodes,
         )
 
     def cell_R(self, x, alpha, beta):
@@ -195,24 +209,26 @@ class _Model(eqx.Module):
         int_Gs = jnp.sum(Gs * weight) + pick(Gs, m) * (h - w_up) + Gs_front * w_up
         return 8.0 * (self.Gg * a * d - self.Gi * self.geo.integral_g(a) - int_Gs)
 
-    def max_criterion(self, cells, a):
-        """Largest value of R on [0, a] (concave R per cell assumed) and where it is.
+    def max_criterion(self, V, vf, a, d):
+        """Largest value of R on [0, a] (concave R per cell assumed) and where it is, for
+        the attached side of `attached_cells(V, vf, a, d)`.
 
         Returns (R_max, x_max, cell index of x_max); R_max carries gradients (envelope
-        theorem), x_max does not.
+        theorem), x_max does not. Reads $R$ at the nodes and three cells.
         """
-        valid = cells.valid
-        R_nodes = jnp.where(valid, cells.R_nodes, -jnp.inf)
+        valid = self.x < a
+        R_nodes = jnp.where(valid, self.attached_cells(V, vf, a, d).R_nodes, -jnp.inf)
         m = jnp.maximum(jnp.sum(valid) - 1, 0)  # last contact node; its cell ends at the front
-        R_front = self.cell_R(a, pick(cells.alpha, m), pick(cells.beta, m))
+        front = self.cell(V, vf, a, d, m)
+        R_front = self.cell_R(a, front.alpha, front.beta)
         j_star = jnp.argmax(R_nodes)
         at_front = R_front >= pick(R_nodes, j_star)
         c1 = jnp.where(at_front, m, jnp.maximum(j_star - 1, 0))
         c2 = jnp.where(at_front, m, j_star)
 
         def cell_max(j):
-            lo, hi = pick(cells.x_lo, j), pick(cells.x_hi, j)
-            al, be = pick(cells.alpha, j), pick(cells.beta, j)
+            cj = self.cell(V, vf, a, d, j)
+            lo, hi, al, be = cj.x_lo, cj.x_hi, cj.alpha, cj.beta
             q = safe_div(self.c, 2.0 * be, jnp.inf)
             xs = jnp.where(be > 0, self.geo.stationary(jnp.where(be > 0, q, 1.0), lo, hi), hi)
             cand = lax.stop_gradient(jnp.stack([lo, hi, xs]))
@@ -305,21 +321,21 @@ class _Model(eqx.Module):
                               jumped=no, theta_jump=nan, overflow=jnp.logical_not(exists))
 
         def receding(_):
-            cells = self.attached_cells(V_att, vf_att, a, d1)
-            R_max, x_max, c_max = self.max_criterion(cells, a)
-            valid = cells.valid
-            ok_nodes = valid & (cells.R_nodes >= 0)
+            R_max, x_max, c_max = self.max_criterion(V_att, vf_att, a, d1)
+            # R at the nodes (its derivatives unused: left out by the compiler)
+            ok_nodes = (x < a) & (self.attached_cells(V_att, vf_att, a, d1).R_nodes >= 0)
             idx = jnp.arange(self.n_nodes)
             m_R = jnp.max(jnp.where(ok_nodes, idx, -1))
             x_mR = jnp.where(m_R >= 0, pick(x, jnp.maximum(m_R, 0)), -jnp.inf)
             use_xmax = (R_max >= 0) & (x_max > x_mR)
             cell = jnp.where(use_xmax, c_max, jnp.maximum(m_R, 0))
             lo = jnp.where(use_xmax, x_max, x_mR)
-            hi = pick(cells.x_hi, cell)
+            picked = self.cell(V_att, vf_att, a, d1, cell)
+            hi = picked.x_hi
             jump = (R_max < 0) | force_detach
             lo = jnp.where(jump, 0.25 * a, lo)
             hi = jnp.where(jump, 0.75 * a, hi)
-            al, be = pick(cells.alpha, cell), pick(cells.beta, cell)
+            al, be = picked.alpha, picked.beta
             mid = 0.5 * (lo + hi)
 
             def resid(xx):
@@ -330,9 +346,7 @@ class _Model(eqx.Module):
             # `active`: under vmap the lanes that do not recede do not hold the loop
             root = concave_root(resid, lo, hi, steps=_ROOT_STEPS, active=recede)
             a_new = jnp.where(jump, 0.0, root)
-            s_edge = pick(cells.s_lo, cell) + pick(cells.slope, cell) * (
-                self.geo.zeta(root) - pick(cells.z_lo, cell)
-            )
+            s_edge = picked.s_lo + picked.slope * (self.geo.zeta(root) - picked.z_lo)
             # springs released during the step: attached until theta, free afterwards.
             # Jump-off: theta from the edge criterion at t0 and max R at t1 (linear in time).
             R0 = 4.0 * (self.Gg * (d0 - ga) - jnp.sum(self.Gk * vf)) + self.c * self.sqrt(a)

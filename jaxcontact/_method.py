@@ -20,6 +20,7 @@ import abc
 
 import diffrax
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from ._arms import arms_apply, attached_update, states_samples, states_velocity
@@ -50,12 +51,14 @@ class AbstractMethod(eqx.Module):
         to `d1` [m].
 
         **Arguments:** `V` `(p, N)` dashpot displacements [m] at `t0` of springs at points
-        where the profile is `g_points` `(p,)` [m]; `P` the free-relaxation propagator
-        $e^{A(t_1 - t_0)}$ `(N, N)`; `tau` `(N,)` [s]; `A` `(N, N)` [1/s].
+        where the profile is `g_points` `(p,)` [m], or a tuple of such blocks with
+        `g_points` a tuple alike (the foundation's nodes and its edge: no concatenation of
+        the nodes' array a step); `P` the free-relaxation propagator $e^{A(t_1 - t_0)}$
+        `(N, N)`; `tau` `(N,)` [s]; `A` `(N, N)` [1/s].
 
-        **Returns:** `(V_attached, V_free, ok)`: the dashpots at `t1` if the springs stay
-        attached all along, if they stay load-free all along, and whether the integration
-        succeeded.
+        **Returns:** `(V_attached, V_free, ok)`: the dashpots at `t1` (blocks as `V`) if the
+        springs stay attached all along, if they stay load-free all along, and whether the
+        integration succeeded.
         """
 
 
@@ -78,8 +81,9 @@ class ExactUpdate(AbstractMethod):
         return w, jnp.asarray(True), jnp.asarray(0)
 
     def propagate(self, V, g_points, t0, t1, d0, d1, P, tau, A):
-        V_att = attached_update(V, d0 - g_points, d1 - d0, t1 - t0, tau)
-        return V_att, arms_apply(P, V), jnp.asarray(True)
+        V_att = jax.tree.map(lambda v, g: attached_update(v, d0 - g, d1 - d0, t1 - t0, tau),
+                             V, g_points)
+        return V_att, jax.tree.map(lambda v: arms_apply(P, v), V), jnp.asarray(True)
 
 
 class DiffraxODE(AbstractMethod):
@@ -158,7 +162,9 @@ class DiffraxODE(AbstractMethod):
         def field(t, y, args):
             va, vf = y
             d = d0 + rate * (t - t0)
-            return ((d - g_points)[:, None] - va) / tau[None, :], vf @ A.T
+            attached = jax.tree.map(lambda v, g: ((d - g)[:, None] - v) / tau[None, :], va,
+                                    g_points)
+            return attached, jax.tree.map(lambda v: arms_apply(A, v), vf)
 
         # a zero-length step (instantaneous jump of d) leaves the dashpots unchanged
         t1_safe = jnp.where(has_span, t1, t0 + 1.0)
@@ -176,7 +182,7 @@ class DiffraxODE(AbstractMethod):
             throw=False,
         )
         va, vf = sol.ys
-        va = jnp.where(has_span, va[0], V)
-        vf = jnp.where(has_span, vf[0], V)
+        va = jax.tree.map(lambda y, v: jnp.where(has_span, y[0], v), va, V)
+        vf = jax.tree.map(lambda y, v: jnp.where(has_span, y[0], v), vf, V)
         ok = (sol.result == diffrax.RESULTS.successful) | jnp.logical_not(has_span)
         return va, vf, ok

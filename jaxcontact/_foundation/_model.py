@@ -246,7 +246,8 @@ class _Model(eqx.Module):
     def propagate(self, Vp, gp, t0, t1, d0, d1, P):
         """Attached and free evolution of all points over the full step (by the method).
 
-        `Vp`: (p, N) states, `gp`: (p,) g at the points. Returns (V_att, V_free, ok).
+        `Vp`: (p, N) states, `gp`: (p,) g at the points, or tuples of such blocks.
+        Returns (V_att, V_free, ok), blocks as `Vp`.
         """
         return self.method.propagate(Vp, gp, t0, t1, d0, d1, P, self.tau, self.A)
 
@@ -264,11 +265,9 @@ class _Model(eqx.Module):
         dt = t1 - t0
         dd = d1 - d0
         ga = self.geo.g(a)
-        Vp = jnp.concatenate([V, E], axis=0)
-        gp = jnp.concatenate([gx, ga[None], ga[None]])
-        Vp_att, Vp_free, ok = self.propagate(Vp, gp, t0, t1, d0, d1, P)
-        V_att, vf_att = Vp_att[:-2], Vp_att[-2]
-        V_free, vf_free = Vp_free[:-2], Vp_free[-1]
+        (V_att, E_att), (V_free, E_free), ok = self.propagate(
+            (V, E), (gx, jnp.stack([ga, ga])), t0, t1, d0, d1, P)
+        vf_att, vf_free = E_att[0], E_free[1]
         # when out of contact the edge sits at x = 0 and carries node 0's state
         vf_free = jnp.where(a > 0, vf_free, V_free[0])
 

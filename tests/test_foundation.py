@@ -556,3 +556,85 @@ def test_input_validation():
         jc.CompliantLoading(0.0)
     with pytest.raises(TypeError, match="method"):
         jc.simulate(SOLID, PARABOLA, DGAMMA, ts, ts, method="exact")
+
+
+# --------------------------------------------------------------------------------------
+# The step's pieces against second methods
+# --------------------------------------------------------------------------------------
+
+_PIECE_PROFILES = [jc.Parabola(_f64(R)), jc.Cone(_f64(0.3)), jc.Sphere(_f64(R)),
+                   jc.FlatPunch(_f64(2e-4))]
+
+
+def _piece_model(profile, cells=12):
+    """A foundation model of two arms on `cells` cells up to a depth of R/50, and a random
+    state of its springs (nodes, edge) [m]."""
+    from jaxcontact._foundation._model import _Model
+    from jaxcontact._method import ExactUpdate
+
+    rheology = jc.PronySeries(_f64(4e4), _f64([3e4, 1e4]), _f64([0.05, 2.0]))
+    geo = profile.touch_coordinate()
+    x = geo.nodes(cells, _f64(R / 50))
+    model = _Model(rheology, profile, DGAMMA, x, ExactUpdate())
+    rng = np.random.default_rng(7)
+    V = jnp.asarray(rng.normal(scale=1e-6, size=(cells + 1, 2)))
+    vf = jnp.asarray(rng.normal(scale=1e-6, size=2))
+    return model, geo, np.asarray(x), V, vf
+
+
+@pytest.mark.parametrize("profile", _PIECE_PROFILES, ids=lambda p: type(p).__name__)
+def test_force_is_the_integral_of_the_springs_linear_in_zeta(profile):
+    # the force's cell weights (fixed by the grid, the front's cell apart) against an
+    # adaptive quadrature of F = 8 [G_g a d - G_inf int g - sum_k G_k int s_k] over [0, a],
+    # s_k interpolated linearly in zeta between the nodes and the front (docs/physics.md)
+    from scipy.integrate import quad
+
+    model, geo, x, V, vf = _piece_model(profile)
+    Gk = np.asarray(model.Gk)
+    d = 3e-6
+    s_nodes = np.asarray(V) + np.asarray(geo.g(jnp.asarray(x)))[:, None]
+    zeta = lambda t: float(geo.zeta(_f64(t)))  # noqa: E731
+    for a in (0.37 * x[1], x[3], 0.5 * (x[5] + x[6]), 0.999 * x[-1]):
+        m = int(np.sum(x < a)) - 1
+        ends = list(x[: m + 1]) + [a]
+        s_ends = list(s_nodes[: m + 1]) + [np.asarray(vf) + float(geo.g(_f64(a)))]
+        S = 0.0
+        for j in range(m + 1):
+            lo, hi = ends[j], ends[j + 1]
+            z_lo, z_hi = zeta(lo), zeta(hi)
+            S_lo, S_hi = float(Gk @ s_ends[j]), float(Gk @ s_ends[j + 1])
+            if z_hi > z_lo:
+                def S_of(t, lo=lo, z_lo=z_lo, z_hi=z_hi, S_lo=S_lo, S_hi=S_hi):
+                    return S_lo + (S_hi - S_lo) * (zeta(t) - z_lo) / (z_hi - z_lo)
+            else:  # a flat cell in zeta (the flat punch): the trapezoid in x
+                def S_of(t, lo=lo, hi=hi, S_lo=S_lo, S_hi=S_hi):
+                    return S_lo + (S_hi - S_lo) * (t - lo) / (hi - lo)
+            S += quad(S_of, lo, hi, epsabs=0.0, epsrel=1e-11, limit=200)[0]
+        int_g = quad(lambda t: float(geo.g(_f64(t))), 0.0, a, epsabs=0.0, epsrel=1e-11,
+                     limit=200)[0]
+        Gg, Gi = float(model.Gg), float(model.Gi)
+        expected = 8.0 * (Gg * a * d - Gi * int_g - S)
+        got = float(model.force(V, vf, _f64(a), _f64(d)))
+        scale = 8.0 * (Gg * a * d + Gi * abs(int_g) + abs(S))
+        assert abs(got - expected) <= 1e-10 * scale, (a, got, expected)
+
+
+@pytest.mark.parametrize("profile", _PIECE_PROFILES, ids=lambda p: type(p).__name__)
+def test_a_cell_alone_equals_its_row_of_the_attached_cells(profile):
+    # the step reads a few cells by `cell` (its inputs picked), the jump-off's refinement
+    # all of them by `attached_cells`: the same cells, index by index, and for an array
+    # of indices at once
+    model, geo, x, V, vf = _piece_model(profile)
+    d = _f64(3e-6)
+    for a in (0.37 * x[1], x[3], 0.5 * (x[5] + x[6]), 0.999 * x[-1]):
+        a = _f64(a)
+        every = model.attached_cells(V, vf, a, d)
+        idx = jnp.arange(len(x))
+        together = model.cell(V, vf, a, d, idx)
+        for name in every.__dataclass_fields__:
+            whole = np.asarray(getattr(every, name))
+            np.testing.assert_allclose(np.asarray(getattr(together, name)), whole,
+                                       rtol=1e-14, atol=0, err_msg=name)
+            for j in (0, 2, len(x) - 1):
+                one = np.asarray(getattr(model.cell(V, vf, a, d, j), name))
+                np.testing.assert_allclose(one, whole[j], rtol=1e-14, atol=0, err_msg=name)

@@ -211,6 +211,7 @@ def concave_root(
     *,
     steps: int,
     active: jax.Array | None = None,
+    unrolled: int = 0,
 ) -> jax.Array:
     r"""Root of `fn` in `[lo, hi]` with `fn(lo) >= 0 > fn(hi)` and `fn` concave there.
 
@@ -224,6 +225,9 @@ def concave_root(
     that is not used: under `vmap` the loop runs until every lane has stopped, so the
     lanes of a branch not taken must not hold it). Near a double root (the fold of the
     front) Newton converges linearly, halving its step, until that floor or `steps`.
+    `unrolled` (static, at most `steps`): that many iterations written out before the loop,
+    the same iterates (a lane that has stopped keeps its values), so that the usual few
+    iterations run as straight-line code without the loop's dispatch and carry copies.
     Differentiated implicitly (`jax.lax.custom_root`).
     """
     lo = lax.stop_gradient(lo)
@@ -275,6 +279,8 @@ def concave_root(
         inf = jnp.full_like(hi, jnp.inf)
         carry = (jnp.asarray(0), lo, hi, hi, f0, df0, inf,
                  jnp.broadcast_to(idle, jnp.shape(hi)))
+        for _ in range(min(unrolled, steps)):
+            carry = body(carry)
         return while_loop(cond, body, carry)[3]
 
     return lax.custom_root(fn, hi, solve, _divide_by_slope)

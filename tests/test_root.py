@@ -204,6 +204,38 @@ def test_concave_root_stops_at_the_root_and_idle_lanes_do_not_hold_the_loop():
                                rtol=1e-12)
 
 
+def test_concave_root_unrolled_iterations_give_the_loops_iterates():
+    # `unrolled`: the first iterations written out before the loop; a lane that has
+    # stopped keeps its values, so every root is the loop's to the bit (a quick root, the
+    # fold's slow one, an idle lane, the implicit derivative)
+    al, be, c = 1.0, 3.0, 0.5
+
+    def crit(x, a=al):
+        return a - be * x * x + c * jnp.sqrt(x)
+
+    lo = jnp.asarray([0.2, 0.2, 1.0])
+    hi = jnp.asarray([1.5, 0.3, 2.0])
+    act = jnp.asarray([True, False, True])
+    eps = 1e-8
+
+    def lane(k, lo_, hi_, act_, fold):
+        f = (lambda x: eps - (x - 1.0) ** 2) if fold else crit
+        return concave_root(f, lo_, hi_, steps=16, active=act_, unrolled=k)
+
+    fold = jnp.asarray([False, False, True])
+    for k in (1, 3, 16):
+        loop = jax.jit(jax.vmap(lambda a, b, t, f: jax.lax.cond(
+            f, lambda: lane(0, a, b, t, True), lambda: lane(0, a, b, t, False))))
+        unrolled = jax.jit(jax.vmap(lambda a, b, t, f, k=k: jax.lax.cond(
+            f, lambda: lane(k, a, b, t, True), lambda: lane(k, a, b, t, False))))
+        np.testing.assert_array_equal(np.asarray(unrolled(lo, hi, act, fold)),
+                                      np.asarray(loop(lo, hi, act, fold)))
+        d = jax.grad(lambda a, k=k: concave_root(lambda x: crit(x, a), 0.2, 1.5, steps=16,
+                                                 unrolled=k))(al)
+        d0 = jax.grad(lambda a: concave_root(lambda x: crit(x, a), 0.2, 1.5, steps=16))(al)
+        assert float(d) == float(d0)
+
+
 def test_concave_root_near_a_double_root():
     # the fold of the front: R = eps - (x - 1)^2 on [1, 2], roots 1 +- sqrt(eps); Newton
     # converges linearly from the right as eps -> 0, the loop ends at `steps`

@@ -638,3 +638,48 @@ def test_a_cell_alone_equals_its_row_of_the_attached_cells(profile):
             for j in (0, 2, len(x) - 1):
                 one = np.asarray(getattr(model.cell(V, vf, a, d, j), name))
                 np.testing.assert_allclose(one, whole[j], rtol=1e-14, atol=0, err_msg=name)
+
+
+def test_swept_springs_in_a_window_equal_every_node(monkeypatch):
+    # the springs the front sweeps in a step are updated at the (at most two) swept nodes
+    # alone, at every node where more are swept (the first touch, a jump-off): a history
+    # equals the one that updates every node at every step, and the window is what most
+    # steps use (counted: the every-node update runs at a few samples only)
+    from jaxcontact._foundation import _model
+
+    ts = jnp.linspace(0.0, 2.0, 80)
+    d = 1e-6 * jnp.sin(jnp.pi * ts / 1.6)
+    G0s = jnp.array([2e3, 8e3, 3e4])
+
+    def run(G0):
+        s = jc.simulate(jc.StandardModel(G0, 0.5 * G0, 0.2 * G0), jc.Parabola(1e-5), 1e-3,
+                        ts, d, grid=24, throw=False)
+        return s.force, s.jumpoff_time, s.contact_radius, s.max_tensile_force
+
+    original = _model._Model._swept_springs
+    calls = [0]
+
+    def counted(self, narrow, first, some, every):
+        def every_counted():
+            jax.debug.callback(lambda: calls.__setitem__(0, calls[0] + 1))
+            return every()
+        return original(self, narrow, first, some, every_counted)
+
+    jax.clear_caches()
+    monkeypatch.setattr(_model._Model, "_swept_springs", counted)
+    window = jax.jit(jax.vmap(run))(G0s)
+    jax.block_until_ready(window)
+    full_steps = calls[0]
+    monkeypatch.setattr(_model._Model, "_swept_springs",
+                        lambda self, narrow, first, some, every: every())
+    jax.clear_caches()
+    every = jax.jit(jax.vmap(run))(G0s)
+    monkeypatch.undo()
+    jax.clear_caches()
+    for w, e in zip(window, every, strict=True):
+        w, e = np.asarray(w), np.asarray(e)
+        scale = float(np.nanmax(np.abs(e), initial=0.0))
+        np.testing.assert_allclose(w, e, rtol=1e-12, atol=1e-12 * scale)
+    # the front moves through 24 cells over ~60 samples in contact: the touching and
+    # receding steps run the window; every node at the first touch and the jump-offs
+    assert 0 < full_steps <= 12, full_steps

@@ -21,6 +21,9 @@ _ROOT_STEPS = 16
 #: the receding front's first Newton iterations written out (`concave_root(unrolled=)`):
 #: a step takes ~2.5 on average; the history objective's Jacobian 3-6 % faster with 3
 _ROOT_UNROLLED = 3
+#: at most this many nodes swept by the front in a step are updated alone
+#: (`_Model._swept_springs`; more: every node)
+_SWEPT_NODES = 2
 
 
 def _upper_weight(h, dz, num):
@@ -244,6 +247,31 @@ class _Model(eqx.Module):
         take2 = r2 >= r1
         return jnp.where(take2, r2, r1), jnp.where(take2, x2, x1), jnp.where(take2, c2, c1)
 
+    def _swept_springs(self, narrow, first, some, every):
+        r"""The springs the front swept in a step (touched or released), shape
+        `(n_nodes, N)`, read only at the swept nodes.
+
+        `every()`: their update at every node; `some(i)`: at the node indices `i` (shape
+        `(K,)`, the same formula on picked inputs). Where `narrow` (the swept nodes are
+        at most $K$ = `_SWEPT_NODES`, from node `first` on), `some` at nodes `first`, …,
+        `first + K - 1` spread over the nodes (the others hold the last one's: never
+        read); elsewhere `every` — under `vmap` run only where some lane needs it (the
+        contact's first touch, a jump-off). The per-node update with its derivatives was
+        the step's largest kernel, needed at one or two nodes.
+        """
+        n = self.n_nodes
+        k = jnp.arange(_SWEPT_NODES)
+
+        def window(_):
+            win = some(jnp.minimum(first + k, n - 1))
+            j = jnp.arange(n)[:, None]
+            out = jnp.broadcast_to(win[-1], (n,) + win.shape[1:])
+            for i in range(_SWEPT_NODES - 2, -1, -1):
+                out = jnp.where(j == first + i, win[i], out)
+            return out
+
+        return _sharding.cond(narrow, window, lambda _: every(), None, masked=False)
+
     # ---- propagation over one step ------------------------------------------------------------
 
     def propagate(self, Vp, gp, t0, t1, d0, d1, P):
@@ -309,12 +337,22 @@ class _Model(eqx.Module):
                                            pick(x, j + 1))
             a_new = jnp.where(exists, a_root, self.L)
             # springs touched during the step: free until theta, attached afterwards
-            phi0 = d0 - gx - arms_sum(V, arm_ratio)
-            theta = jnp.where(phi0 >= 0, 0.0, jnp.clip(safe_div(phi0, phi0 - phi_nodes), 0, 1))
-            v_theta = V + theta[:, None] * (V_free - V)
-            V_touch = attached_update(
-                v_theta, d0 + theta * dd - gx, (1 - theta) * dd, (1 - theta) * dt, self.tau
-            )
+            def touched(Vs, Vs_free, gs, phi1):
+                phi0 = d0 - gs - arms_sum(Vs, arm_ratio)
+                theta = jnp.where(phi0 >= 0, 0.0,
+                                  jnp.clip(safe_div(phi0, phi0 - phi1), 0, 1))
+                v_theta = Vs + theta[..., None] * (Vs_free - Vs)
+                return attached_update(v_theta, d0 + theta * dd - gs, (1 - theta) * dd,
+                                       (1 - theta) * dt, self.tau)
+
+            # usually the front crosses a node or two: those alone (`_swept_springs`)
+            first = jnp.sum(x < a)
+            narrow = jnp.logical_not(advance) | (exists & (jnp.sum(x < a_new) - first
+                                                           <= _SWEPT_NODES))
+            V_touch = self._swept_springs(
+                narrow, first, lambda i: touched(pick(V, i), pick(V_free, i), pick(gx, i),
+                                                 pick(phi_nodes, i)),
+                lambda: touched(V, V_free, gx, phi_nodes))
             # the contact covers the whole grid (the flat punch): the edge is the last node
             v_lo = jnp.where(beyond, pick(V_free, j), vf_free)
             vf_new = jnp.where(exists, v_lo + frac * (pick(V_free, j + 1) - v_lo), V_touch[-1])
@@ -355,11 +393,21 @@ class _Model(eqx.Module):
             R0 = 4.0 * (self.Gg * (d0 - ga) - jnp.sum(self.Gk * vf)) + self.c * self.sqrt(a)
             theta_jump = jnp.clip(safe_div(R0, R0 - R_max, 1.0), 0.0, 1.0)
             theta_jump = jnp.where(jump, theta_jump, jnp.nan)
-            theta_front = jnp.clip(safe_div(a - x, a - a_new, 1.0), 0.0, 1.0)
-            theta = jnp.where(jump, theta_jump, theta_front)
-            theta = jnp.where(jnp.isfinite(theta), theta, 1.0)
-            v_theta = attached_update(V, d0 - gx, theta * dd, theta * dt, self.tau)
-            V_rel = v_theta + (1 - theta)[:, None] * (arms_apply(P, v_theta) - v_theta)
+            def released(xs, Vs, gs):
+                theta_front = jnp.clip(safe_div(a - xs, a - a_new, 1.0), 0.0, 1.0)
+                theta = jnp.where(jump, theta_jump, theta_front)
+                theta = jnp.where(jnp.isfinite(theta), theta, 1.0)
+                v_theta = attached_update(Vs, d0 - gs, theta * dd, theta * dt, self.tau)
+                return v_theta + (1 - theta)[..., None] * (arms_apply(P, v_theta) - v_theta)
+
+            # usually the front recedes over a node or two: those alone (a jump-off
+            # releases every spring in contact)
+            first = jnp.sum(x < a_new)
+            narrow = jnp.logical_not(recede) | (jnp.logical_not(jump)
+                                                & (jnp.sum(x < a) - first <= _SWEPT_NODES))
+            V_rel = self._swept_springs(
+                narrow, first, lambda i: released(pick(x, i), pick(V, i), pick(gx, i)),
+                lambda: released(x, V, gx))
             # a jump-off releases every spring (node 0 included: x_0 = 0 < a)
             vf_new = jnp.where(jump, V_rel[0], s_edge - self.geo.g(root))
             E_new = jnp.stack([vf_new, vf_new])

@@ -52,9 +52,9 @@ class _Model(eqx.Module):
     - `geo`: the profile's `TouchCoordinate`; `Gi_g`: the elastic part of beta,
       $4G_\infty g(x)$'s weight;
     - `x`: the grid's nodes [touch coordinate], shape `(n_nodes,)`; `n_nodes` (static);
-      `L`: the last node; `gx`, `zx`, `Zx`, `sqrt_x`: $g$, $\zeta$, $\int\zeta$ and
-      $\sqrt x$ at the nodes; `x_next`, `z_next`, `Z_next`: the same at the next node (the
-      last: $\infty$ and repeated);
+      `L`: the last node; `gx`, `zx`, `Zx`: $g$, $\zeta$ and $\int\zeta$ at the nodes;
+      `x_next`, `z_next`: $x$ and $\zeta$ at the next node (the last: $\infty$ and
+      repeated);
     - `w_lo`, `w_hi`: the weights of a whole cell $[x_j, x_{j+1}]$ in the force integral,
       $\int_{x_j}^{x_{j+1}} S\,dx = w_{\mathrm{lo},j} S_j + w_{\mathrm{hi},j} S_{j+1}$ for
       $S$ linear in $\zeta$ (`force`); `w_hi` shifted by one node (the weight of node
@@ -77,10 +77,8 @@ class _Model(eqx.Module):
     gx: Array
     zx: Array
     Zx: Array
-    sqrt_x: Array
     x_next: Array
     z_next: Array
-    Z_next: Array
     w_lo: Array
     w_hi: Array
     method: AbstractMethod
@@ -108,12 +106,10 @@ class _Model(eqx.Module):
         self.gx = self.geo.g(x_nodes)
         self.zx = self.geo.zeta(x_nodes)
         self.Zx = self.geo.zeta_integral(x_nodes)
-        self.sqrt_x = jnp.sqrt(x_nodes)
         inf = jnp.full((1,), jnp.inf, dtype=x_nodes.dtype)
         self.x_next = jnp.concatenate([x_nodes[1:], inf])
         self.z_next = jnp.concatenate([self.zx[1:], self.zx[-1:]])
-        self.Z_next = jnp.concatenate([self.Zx[1:], self.Zx[-1:]])
-        # a whole cell's weights in the force integral (`_cell_weights`), fixed by the grid
+        # a whole cell's weights in the force integral (`_upper_weight`), fixed by the grid
         h = x_nodes[1:] - x_nodes[:-1]
         w_up = _upper_weight(h, self.zx[1:] - self.zx[:-1], self.Zx[1:] - self.Zx[:-1]
                              - self.zx[:-1] * h)

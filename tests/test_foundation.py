@@ -659,11 +659,11 @@ def test_swept_springs_in_a_window_equal_every_node(monkeypatch):
     original = _model._Model._swept_springs
     calls = [0]
 
-    def counted(self, narrow, first, some, every):
+    def counted(self, lo, hi, some, every, **kw):
         def every_counted():
             jax.debug.callback(lambda: calls.__setitem__(0, calls[0] + 1))
             return every()
-        return original(self, narrow, first, some, every_counted)
+        return original(self, lo, hi, some, every_counted, **kw)
 
     jax.clear_caches()
     monkeypatch.setattr(_model._Model, "_swept_springs", counted)
@@ -671,7 +671,7 @@ def test_swept_springs_in_a_window_equal_every_node(monkeypatch):
     jax.block_until_ready(window)
     full_steps = calls[0]
     monkeypatch.setattr(_model._Model, "_swept_springs",
-                        lambda self, narrow, first, some, every: every())
+                        lambda self, lo, hi, some, every, **kw: every())
     jax.clear_caches()
     every = jax.jit(jax.vmap(run))(G0s)
     monkeypatch.undo()

@@ -211,16 +211,22 @@ class _Model(eqx.Module):
         int_Gs = jnp.sum(Gs * weight) + pick(Gs, m) * (h - w_up) + Gs_front * w_up
         return 8.0 * (self.Gg * a * d - self.Gi * self.geo.integral_g(a) - int_Gs)
 
-    def max_criterion(self, V, vf, a, d):
+    def criterion_nodes(self, V, vf, a, d):
+        """R at the nodes in contact, `-inf` at the others, shape `(n_nodes,)` [N/m]; for
+        decisions (callers use no derivative of it: the compiler leaves them out)."""
+        return jnp.where(self.x < a, self.attached_cells(V, vf, a, d).R_nodes, -jnp.inf)
+
+    def max_criterion(self, V, vf, a, d, R_nodes=None):
         """Largest value of R on [0, a] (concave R per cell assumed) and where it is, for
-        the attached side of `attached_cells(V, vf, a, d)`.
+        the attached side of `attached_cells(V, vf, a, d)`; `R_nodes`: its
+        `criterion_nodes` where the caller has them.
 
         Returns (R_max, x_max, cell index of x_max); R_max carries gradients (envelope
         theorem), x_max does not. Reads $R$ at the nodes and three cells.
         """
-        valid = self.x < a
-        R_nodes = jnp.where(valid, self.attached_cells(V, vf, a, d).R_nodes, -jnp.inf)
-        m = jnp.maximum(jnp.sum(valid) - 1, 0)  # last contact node; its cell ends at the front
+        if R_nodes is None:
+            R_nodes = self.criterion_nodes(V, vf, a, d)
+        m = jnp.maximum(jnp.sum(self.x < a) - 1, 0)  # last contact node; its cell ends at the front
         front = self.cell(V, vf, a, d, m)
         R_front = self.cell_R(a, front.alpha, front.beta)
         j_star = jnp.argmax(R_nodes)
@@ -243,20 +249,24 @@ class _Model(eqx.Module):
         take2 = r2 >= r1
         return jnp.where(take2, r2, r1), jnp.where(take2, x2, x1), jnp.where(take2, c2, c1)
 
-    def _swept_springs(self, narrow, first, some, every):
-        r"""The springs the front swept in a step (touched or released), shape
-        `(n_nodes, N)`, read only at the swept nodes.
+    def _swept_springs(self, lo, hi, some, every, *, unused, all_nodes):
+        r"""The springs the front swept in a step (touched or released): those at
+        `lo` $\le x <$ `hi`, shape `(n_nodes, N)`, read only there.
 
         `every()`: their update at every node; `some(i)`: at the node indices `i` (shape
-        `(K,)`, the same formula on picked inputs). Where `narrow` (the swept nodes are
-        at most $K$ = `_SWEPT_NODES`, from node `first` on), `some` at nodes `first`, …,
-        `first + K - 1` spread over the nodes (the others hold the last one's: never
-        read); elsewhere `every` — under `vmap` run only where some lane needs it (the
+        `(K,)`, the same formula on picked inputs). Where at most $K$ = `_SWEPT_NODES` nodes
+        were swept (or the result is `unused`: a lane of another branch), `some` at the
+        first $K$ nodes from `lo` on, spread over the nodes (the others hold the last
+        one's: never read); elsewhere, and where `all_nodes` (a jump-off, a contact over
+        the whole grid), `every` — under `vmap` run only where some lane needs it (the
         contact's first touch, a jump-off). The per-node update with its derivatives was
         the step's largest kernel, needed at one or two nodes.
         """
         n = self.n_nodes
         k = jnp.arange(_SWEPT_NODES)
+        first = jnp.sum(self.x < lo)
+        narrow = unused | (jnp.logical_not(all_nodes)
+                           & (jnp.sum(self.x < hi) - first <= _SWEPT_NODES))
 
         def window(_):
             win = some(jnp.minimum(first + k, n - 1))
@@ -342,13 +352,11 @@ class _Model(eqx.Module):
                                        (1 - theta) * dt, self.tau)
 
             # usually the front crosses a node or two: those alone (`_swept_springs`)
-            first = jnp.sum(x < a)
-            narrow = jnp.logical_not(advance) | (exists & (jnp.sum(x < a_new) - first
-                                                           <= _SWEPT_NODES))
             V_touch = self._swept_springs(
-                narrow, first, lambda i: touched(pick(V, i), pick(V_free, i), pick(gx, i),
-                                                 pick(phi_nodes, i)),
-                lambda: touched(V, V_free, gx, phi_nodes))
+                a, a_new, lambda i: touched(pick(V, i), pick(V_free, i), pick(gx, i),
+                                            pick(phi_nodes, i)),
+                lambda: touched(V, V_free, gx, phi_nodes),
+                unused=jnp.logical_not(advance), all_nodes=jnp.logical_not(exists))
             # the contact covers the whole grid (the flat punch): the edge is the last node
             v_lo = jnp.where(beyond, pick(V_free, j), vf_free)
             vf_new = jnp.where(exists, v_lo + frac * (pick(V_free, j + 1) - v_lo), V_touch[-1])
@@ -357,9 +365,9 @@ class _Model(eqx.Module):
                               jumped=no, theta_jump=nan, overflow=jnp.logical_not(exists))
 
         def receding(_):
-            R_max, x_max, c_max = self.max_criterion(V_att, vf_att, a, d1)
-            # R at the nodes (its derivatives unused: left out by the compiler)
-            ok_nodes = (x < a) & (self.attached_cells(V_att, vf_att, a, d1).R_nodes >= 0)
+            R_nodes = self.criterion_nodes(V_att, vf_att, a, d1)
+            R_max, x_max, c_max = self.max_criterion(V_att, vf_att, a, d1, R_nodes)
+            ok_nodes = R_nodes >= 0  # in contact and holding
             idx = jnp.arange(self.n_nodes)
             m_R = jnp.max(jnp.where(ok_nodes, idx, -1))
             x_mR = jnp.where(m_R >= 0, pick(x, jnp.maximum(m_R, 0)), -jnp.inf)
@@ -398,12 +406,9 @@ class _Model(eqx.Module):
 
             # usually the front recedes over a node or two: those alone (a jump-off
             # releases every spring in contact)
-            first = jnp.sum(x < a_new)
-            narrow = jnp.logical_not(recede) | (jnp.logical_not(jump)
-                                                & (jnp.sum(x < a) - first <= _SWEPT_NODES))
             V_rel = self._swept_springs(
-                narrow, first, lambda i: released(pick(x, i), pick(V, i), pick(gx, i)),
-                lambda: released(x, V, gx))
+                a_new, a, lambda i: released(pick(x, i), pick(V, i), pick(gx, i)),
+                lambda: released(x, V, gx), unused=jnp.logical_not(recede), all_nodes=jump)
             # a jump-off releases every spring (node 0 included: x_0 = 0 < a)
             vf_new = jnp.where(jump, V_rel[0], s_edge - self.geo.g(root))
             E_new = jnp.stack([vf_new, vf_new])

@@ -92,10 +92,19 @@ def _predict_one(spec: ModelSpec, p, profile, ts, drive, depth, stiffness):
 
 def predict(spec: ModelSpec, p: Float[Array, " p"], data: CurveBatch) -> jc.ContactSolution:
     """Forward model for every curve at natural parameters `p` (batched `ContactSolution`,
-    leading axis = curve; the force without the force offset)."""
-    return jax.vmap(
-        lambda ts, drive, depth, k: _predict_one(spec, p, data.profile, ts, drive, depth, k)
-    )(data.ts, data.drive, data.depth, data.stiffness)
+    leading axis = curve; the force without the force offset).
+
+    One curve (every problem of a search) is not vmapped: the same operations with a
+    leading axis of 1 added to the outputs, and one batching pass less over the model's
+    trace (the history model's search program traces ~2.5 s faster)."""
+
+    def one(ts, drive, depth, k):
+        return _predict_one(spec, p, data.profile, ts, drive, depth, k)
+
+    if data.ts.shape[0] == 1:
+        sol = one(data.ts[0], data.drive[0], data.depth[0], data.stiffness[0])
+        return jax.tree.map(lambda x: jnp.expand_dims(x, 0), sol)
+    return jax.vmap(one)(data.ts, data.drive, data.depth, data.stiffness)
 
 
 def effective_force(sol: jc.ContactSolution, data: CurveBatch) -> Float[Array, "C n"]:

@@ -67,9 +67,13 @@ drops those lanes' tangents), and cost a select per input and tangent direction 
 the full-history Jacobian of a fit). Inside `forward_only()` the branches traced leave them
 out; a caller uses it around a trace that it differentiates in forward mode only (the
 fitting objective's Jacobian). `compiled` then returns the entry point's forward-mode
-twin: its own nested program with its own cache (a distinct function object), so that no
-cached program without the masks reaches a later trace that is differentiated in reverse
-mode, and a trace that calls the entry point at several places still traces it once.
+twin, which traces the entry point's body into the caller's program (no nested ``jit``,
+so no cached program without the masks reaches a later trace that is differentiated in
+reverse mode) and, called with concrete arguments, runs its own nested program with its
+own cache (a distinct function object). Traced inline, the fitting's Jacobian is
+transformed by one rule less per ``vmap`` and ``jvp`` above it: the search program of
+the README main job traces in ~1 s less (``benchmarks/results/fit.md``, "The search
+program traced in a third less time").
 
 With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
 ``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).
@@ -255,18 +259,29 @@ _FORWARD_TWINS: dict = {}
 
 def compiled(jitted, plain):
     """The function to call: `jitted` (``eqx.filter_jit(plain)``: its own compiled program,
-    cached), except inside a trace under a mesh with explicit axes, where `plain` is traced
-    into the caller's program instead (the same operations; jax 0.10's batching rule of a
-    nested ``jit`` re-types its outputs on an empty mesh there), and inside `forward_only`,
-    where it is the forward-mode twin of `jitted` (module docstring)."""
+    cached), except
+
+    - inside a trace under a mesh with explicit axes: `plain`, traced into the caller's
+      program (the same operations; jax 0.10's batching rule of a nested ``jit`` re-types
+      its outputs on an empty mesh there);
+    - inside `forward_only`: `plain` traced into the caller's program when the call's
+      arguments are traced, the entry point's forward-mode twin when they are concrete
+      (module docstring)."""
     if _explicit_mesh():
         return plain
     if not _FORWARD_ONLY.get():
         return jitted
     twin = _FORWARD_TWINS.get(plain)
     if twin is None:  # a new function object: jit caches its traces apart from `jitted`'s
-        twin = _FORWARD_TWINS.setdefault(
-            plain, eqx.filter_jit(functools.wraps(plain)(lambda *a, **k: plain(*a, **k))))
+        jit_twin = eqx.filter_jit(functools.wraps(plain)(lambda *a, **k: plain(*a, **k)))
+
+        @functools.wraps(plain)
+        def twin(*args, **kwargs):
+            traced = any(isinstance(x, jax.core.Tracer)
+                         for x in jax.tree_util.tree_leaves((args, kwargs)))
+            return (plain if traced else jit_twin)(*args, **kwargs)
+
+        twin = _FORWARD_TWINS.setdefault(plain, twin)
     return twin
 
 

@@ -224,10 +224,14 @@ def test_a_history_step_does_the_contacts_work_only_where_some_lane_touches(monk
 def test_forward_only_traces_leave_values_derivatives_and_later_gradients_alone():
     # inside `forward_only` (the fitting objective's Jacobian) the branches leave out their
     # reverse-mode masks: the values and forward-mode derivatives of every lane are the same;
-    # the entry point is its forward-mode twin (a nested program cached apart from the
-    # entry point's own), so a later reverse-mode gradient in the same process, lanes in
-    # different branches, is still finite and equals a central difference
+    # the entry point is its forward-mode twin (traced into the caller's program, or its
+    # own nested program cached apart from the entry point's for concrete arguments), so a
+    # later reverse-mode gradient in the same process, lanes in different branches, is
+    # still finite and equals a central difference
+    seen = []
+
     def plain(x):
+        seen.append(isinstance(x, jax.core.Tracer))
         return 2.0 * x
 
     jitted = jax.jit(plain)
@@ -236,7 +240,12 @@ def test_forward_only_traces_leave_values_derivatives_and_later_gradients_alone(
         twin = _sharding.compiled(jitted, plain)
         assert twin is not jitted and twin is not plain
         assert _sharding.compiled(jitted, plain) is twin
-        assert float(twin(1.5)) == 3.0
+        # concrete: its own program (traced once)
+        assert float(twin(jnp.asarray(1.5))) == 3.0
+        assert float(twin(jnp.asarray(2.5))) == 5.0 and seen == [True]
+        # traced: the body in the caller's program, no nested jit
+        jaxpr = jax.make_jaxpr(twin)(1.5)
+        assert [e.primitive.name for e in jaxpr.eqns] == ["mul"]
     assert _sharding.compiled(jitted, plain) is jitted
     ts, d, prof, G0s, offsets = _three_lanes()
 

@@ -91,7 +91,7 @@ from jax import lax
 from jax.custom_batching import custom_vmap
 
 __all__ = ["any_lane", "compiled", "cond", "forward_only", "on_mesh", "pick", "scan",
-           "searchsorted", "switch", "while_loop"]
+           "searchsorted", "seeded", "switch", "while_loop"]
 
 #: `switch` and `cond` skip the branches no lane takes (module docstring); ``0`` in the
 #: environment variable ``JAXCONTACT_LANE_BRANCHES`` at import: plain ``lax.switch``.
@@ -147,6 +147,40 @@ def _tie(carry, *others):
     for x in arrays + [jnp.asarray(y) for y in jax.tree_util.tree_leaves(others)]:
         anchor = anchor | jnp.any(x != x)  # one boolean per lane, always False
     return jax.tree_util.tree_unflatten(tree, [jnp.where(anchor, x, x) for x in arrays])
+
+
+def seeded(carry, deps):
+    r"""`carry` (a loop's initial carry) with the same values, but batched and carrying
+    tangents wherever `deps` (the values the loop's lanes differ by and are differentiated
+    with respect to) are: every floating element plus $0\cdot s$, every other element
+    selected by $s = s$, with $s$ a finite scalar summing `deps`.
+
+    Under ``vmap`` and ``jvp`` JAX finds which elements of a loop's carry are batched, or
+    carry a non-zero tangent, by a fixed point: it rewrites the loop's body with the
+    initial carry's pattern, learns which outputs came out batched (non-zero), and rewrites
+    it again until nothing changes. A carry that starts as constants (zeros: the unloaded
+    sample) and becomes lane-dependent after a step or two costs two or three rewrites of the
+    whole body per transformation, every nested loop and branch included. Seeded, the
+    first rewrite is the last. For a carry that depends on `deps` after the first steps
+    anyway (the history loop's state) the compiled program is the same but for the seed's
+    few operations; an element that would have stayed without a tangent (a time) gets a
+    zero one."""
+    total = jnp.zeros((), jnp.result_type(float))
+    for x in jax.tree_util.tree_leaves(deps):
+        x = jnp.asarray(x)
+        if jnp.issubdtype(x.dtype, jnp.inexact):
+            x = jnp.real(x)
+            total = total + jnp.sum(jnp.where(jnp.isfinite(x), x, 0.0)).astype(total.dtype)
+    zero = 0.0 * total
+    same = total == total  # True, batched as `deps` are
+
+    def seed(x):
+        x = jnp.asarray(x)
+        if jnp.issubdtype(x.dtype, jnp.inexact):
+            return x + zero.astype(x.dtype)
+        return jnp.where(same, x, x)
+
+    return jax.tree_util.tree_map(seed, carry)
 
 
 def while_loop(cond_fun, body_fun, init_val):

@@ -300,6 +300,11 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
                          edge_at=vf0, radius_at=a0)
     carry0 = _Carry(state=state0, jumpoff_step=pre0, found=jnp.asarray(False), stiffness=zero,
                     min_pair=pair0, min_force=inf)
+    # (seeded: the loop's state depends on every input after the first contact; the times
+    # of the jump-off's step on the sample times alone)
+    seeded = _sharding.seeded(carry0, (rheology, profile, work_of_adhesion, ts, u, loading))
+    carry0 = eqx.tree_at(lambda c: (c.jumpoff_step.t0, c.jumpoff_step.t1), seeded,
+                         (pre0.t0, pre0.t1))
     carry_end, out = _sharding.scan(body, carry0, (t_prev, ts, u_prev, u, P_all))
     pre, found, min_pair = carry_end.jumpoff_step, carry_end.found, carry_end.min_pair
     d, force, radius, jumped = out.depth, out.force, out.radius, out.jumped

@@ -73,7 +73,7 @@ reverse mode) and, called with concrete arguments, runs its own nested program w
 own cache (a distinct function object). Traced inline, the fitting's Jacobian is
 transformed by one rule less per ``vmap`` and ``jvp`` above it: the search program of
 the README main job traces in ~1 s less (``benchmarks/results/fit.md``, "The search
-program traced in a third less time").
+program traced in half the time").
 
 With these, `retract`, `simulate`, `bem_simulate` and the elastic functions run inside
 ``jit(vmap(...))`` over inputs sharded in either axis mode (`tests/test_sharding.py`).

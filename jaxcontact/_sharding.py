@@ -152,8 +152,9 @@ def _tie(carry, *others):
 def seeded(carry, deps):
     r"""`carry` (a loop's initial carry) with the same values, but batched and carrying
     tangents wherever `deps` (the values the loop's lanes differ by and are differentiated
-    with respect to) are: every floating element plus $0\cdot s$, every other element
-    selected by $s = s$, with $s$ a finite scalar summing `deps`.
+    with respect to) are: every floating element plus $z$, every other element selected by
+    $z = z$, with $z = \sum 0\cdot x$ over the finite elements $x$ of `deps` (exactly 0,
+    whatever their size).
 
     Under ``vmap`` and ``jvp`` JAX finds which elements of a loop's carry are batched, or
     carry a non-zero tangent, by a fixed point: it rewrites the loop's body with the
@@ -165,14 +166,13 @@ def seeded(carry, deps):
     anyway (the history loop's state) the compiled program is the same but for the seed's
     few operations; an element that would have stayed without a tangent (a time) gets a
     zero one."""
-    total = jnp.zeros((), jnp.result_type(float))
+    zero = jnp.zeros((), jnp.result_type(float))
     for x in jax.tree_util.tree_leaves(deps):
         x = jnp.asarray(x)
         if jnp.issubdtype(x.dtype, jnp.inexact):
             x = jnp.real(x)
-            total = total + jnp.sum(jnp.where(jnp.isfinite(x), x, 0.0)).astype(total.dtype)
-    zero = 0.0 * total
-    same = total == total  # True, batched as `deps` are
+            zero = zero + jnp.sum(0.0 * jnp.where(jnp.isfinite(x), x, 0.0)).astype(zero.dtype)
+    same = zero == zero  # True, batched as `deps` are
 
     def seed(x):
         x = jnp.asarray(x)

@@ -266,11 +266,19 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
     vf0 = jnp.zeros((N,), dtype=dtype)
     E0 = jnp.zeros((2, N), dtype=dtype)
     a0 = jnp.zeros((), dtype=dtype)
+    inf = jnp.asarray(jnp.inf, dtype=dtype)
+    # the contact's state (springs, front, the lowest force and its pair) starts as
+    # constants and depends on every input after the first contact: seeded, so that JAX
+    # rewrites the loop's body once per transformation (`_sharding.seeded`); the
+    # indentation, the times and the stiffness keep their own dependencies (the input's,
+    # the samples')
+    V0, vf0, E0, a0, inf, found0 = _sharding.seeded(
+        (V0, vf0, E0, a0, inf, jnp.asarray(False)),
+        (rheology, profile, work_of_adhesion, ts, u, loading))
     d_start = jnp.minimum(u[0], 0.0)
     state0 = FoundationState(nodes=V0, edge=E0, radius=a0, depth=d_start)
     pre0 = StepStart(nodes=V0, edge_spring=vf0, radius=a0, t0=ts[0], t1=ts[0], d0=d_start,
                      d1=d_start)
-    inf = jnp.asarray(jnp.inf, dtype=dtype)
 
     def body(carry, inp):
         state, pre, found = carry.state, carry.jumpoff_step, carry.found
@@ -298,13 +306,8 @@ def _history(rheology, profile, work_of_adhesion, ts, u, loading, grid, method):
     zero = jnp.zeros((), dtype=dtype)
     pair0 = _MinimumPair(nodes_before=V0, edge_before=vf0, radius_before=a0, nodes_at=V0,
                          edge_at=vf0, radius_at=a0)
-    carry0 = _Carry(state=state0, jumpoff_step=pre0, found=jnp.asarray(False), stiffness=zero,
+    carry0 = _Carry(state=state0, jumpoff_step=pre0, found=found0, stiffness=zero,
                     min_pair=pair0, min_force=inf)
-    # (seeded: the loop's state depends on every input after the first contact; the times
-    # of the jump-off's step on the sample times alone)
-    seeded = _sharding.seeded(carry0, (rheology, profile, work_of_adhesion, ts, u, loading))
-    carry0 = eqx.tree_at(lambda c: (c.jumpoff_step.t0, c.jumpoff_step.t1), seeded,
-                         (pre0.t0, pre0.t1))
     carry_end, out = _sharding.scan(body, carry0, (t_prev, ts, u_prev, u, P_all))
     pre, found, min_pair = carry_end.jumpoff_step, carry_end.found, carry_end.min_pair
     d, force, radius, jumped = out.depth, out.force, out.radius, out.jumped

@@ -168,6 +168,8 @@ def seeded(carry, deps):
     zero one."""
     zero = jnp.zeros((), jnp.result_type(float))
     for x in jax.tree_util.tree_leaves(deps):
+        if not eqx.is_array_like(x):  # (a name, a flag of a module: not a value)
+            continue
         x = jnp.asarray(x)
         if jnp.issubdtype(x.dtype, jnp.inexact):
             x = jnp.real(x)

@@ -20,7 +20,7 @@ def test_seeded_carry_holds_the_same_values():
              jnp.asarray(7, jnp.int32), jnp.ones(2, jnp.float32))
     for deps in ((jnp.asarray(3.0), jnp.arange(4.0)), (jnp.asarray(jnp.nan), jnp.inf),
                  (jnp.asarray(-1e300), jnp.asarray(1e300), jnp.full(3, 1e308)),
-                 jnp.full(4, 3e38, jnp.float32)):
+                 jnp.full(4, 3e38, jnp.float32), ("a name", None, 2.0, True)):
         out = seeded(carry, deps)
         for a, b in zip(out, carry, strict=True):
             assert a.dtype == b.dtype and a.shape == b.shape

@@ -37,6 +37,7 @@ from ._validate import (
     Constraint,
     check_contact_radius,
     check_plausible,
+    concrete_float,
     contact_radius_plausible,
     contact_radius_valid,
     is_concrete,
@@ -138,7 +139,7 @@ def _radius_ok(profile, a):
 def _check_radius(profile, a, name="a"):
     if is_concrete(a) and is_concrete(profile):
         arr = np.ravel(np.asarray(a, dtype=float))
-        amax = float(profile.valid_radius)
+        amax = concrete_float(lambda: profile.valid_radius)
         good = np.isfinite(arr) & (arr >= 0) & (arr <= amax)
         if not np.all(good):
             raise ValueError(f"`{name}` (contact radius) must be finite and in [0, {amax:g}] "

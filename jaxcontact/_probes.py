@@ -36,7 +36,7 @@ from ._profiles import (
 )
 from ._root import bracketed_root, convex_root
 from ._solvers import as_float, float64_scope
-from ._validate import Constraint, float_field, guarded, is_concrete
+from ._validate import Constraint, concrete_float, float_field, guarded, is_concrete
 
 __all__ = [
     "Sphere",
@@ -343,7 +343,7 @@ def check_depth_limit(name: str, profile: AbstractProfile, depth) -> None:
     if not isinstance(profile, Sphere) or not is_concrete((profile, depth)):
         return
     d = float(np.max(np.asarray(depth, dtype=float)))
-    limit = float(depth_limit(profile))
+    limit = concrete_float(lambda: depth_limit(profile))
     if d > limit:
         raise ValueError(
             f"`{name}` reaches {d:g} m, beyond the limit of the exact sphere "

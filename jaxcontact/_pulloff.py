@@ -86,6 +86,7 @@ from ._validate import (
     check_contact_radius,
     check_finite,
     check_times,
+    concrete_float,
     contact_radius_plausible,
     contact_radius_valid,
     is_concrete,
@@ -261,11 +262,11 @@ def _requirements(rheology, profile, dgamma, depth, ts, velocity, displacement,
 
     def within_profile():
         if is_concrete(contact_radius) and is_concrete(profile):
-            amax = profile.max_radius
-            if bool(jnp.asarray(contact_radius) > amax):
+            amax = concrete_float(lambda: profile.max_radius)
+            if float(np.asarray(contact_radius)) > amax:
                 raise ValueError(
-                    f"`contact_radius` = {float(contact_radius):g} m exceeds the profile's "
-                    f"size {float(amax):g} m."
+                    f"`contact_radius` = {float(np.asarray(contact_radius)):g} m exceeds the "
+                    f"profile's size {amax:g} m."
                 )
 
     @functools.cache

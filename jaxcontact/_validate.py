@@ -3,7 +3,10 @@ r"""Input validation shared by the physics modules.
 Three layers, all naming the parameter, its unit and the allowed range:
 
 - **Eager checks** (`check_positive`, `check_finite`, `check_times`, `Constraint.check`,
-  `check_plausible`): a `ValueError` as soon as a value is concrete (not a JAX tracer).
+  `check_plausible`): a `ValueError` as soon as a value is concrete (not a JAX tracer),
+  also a value closed over by a caller's `jit`. A limit that a check computes from such
+  values (a profile's largest radius) is read with `concrete_float`: inside a `jit` trace JAX
+  stages every operation, even on concrete arrays, and `float()` of the result fails.
 - **Traced checks** (`Constraint.ok`, `times_ok`, `plausible`): boolean arrays computed inside
   the compiled program, one per batch lane under `vmap`. The entry functions fold them into
   their `.result` (`throw=False`) or raise (`throw=True`) with `equinox.error_if`.
@@ -49,6 +52,7 @@ __all__ = [
     "check_positive",
     "check_times",
     "branched_error_if",
+    "concrete_float",
     "contact_radius_plausible",
     "contact_radius_valid",
     "domain_ok",
@@ -69,6 +73,15 @@ def is_concrete(value) -> bool:
     """True when `value` holds real numbers (not a JAX tracer)."""
     leaves = jax.tree_util.tree_leaves(value)
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in leaves)
+
+
+def concrete_float(fn) -> float:
+    """`float(fn())` of a closed-form expression of concrete values, computed at once also
+    inside a caller's `jit` trace, where JAX would stage its operations and `float()` could
+    not read the result (`jax.ensure_compile_time_eval`). Closed-form arithmetic only: a
+    nested program with run-time checks (`equinox.error_if`) misfires under it."""
+    with jax.ensure_compile_time_eval():
+        return float(np.asarray(fn()))
 
 
 def check_finite(name: str, value, unit: str = "") -> None:
@@ -550,7 +563,7 @@ def check_contact_radius(profile, a, source: str) -> None:
     if arr.size == 0:
         return
     got = float(arr.max())
-    limit = float(np.asarray(profile.valid_radius))
+    limit = concrete_float(lambda: profile.valid_radius)
     name = type(profile).__name__
     if got > limit and plausibility_enabled():
         what = ("radius `R`" if math.isfinite(limit) and hasattr(profile, "R")

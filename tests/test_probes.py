@@ -483,3 +483,84 @@ def test_sphere_gradients_against_finite_differences():
         h = 1e-6 * x
         fd = (float(fn(x + h)) - float(fn(x - h))) / (2 * h)
         np.testing.assert_allclose(jax.grad(fn)(x), fd, rtol=1e-6)
+
+
+# --------------------------------------------------------------------------------------
+# every profile inside a user's `jit`, closed over (concrete) or an argument (traced)
+# --------------------------------------------------------------------------------------
+
+_XS = np.linspace(0.0, 3e-5, 200)
+JIT_PROFILES = {"parabola": jc.Parabola(R), "sphere": jc.Sphere(R), "cone": jc.Cone(1.2),
+                "pyramid": jc.pyramid(1.2), "power_law": jc.PowerLaw(c=1e10, n=3.0),
+                "flat_punch": jc.FlatPunch(2e-6), "tabulated": jc.Tabulated(_XS, _XS**2 / (2 * R))}
+_TS = jnp.linspace(0.0, 0.05, 32)
+_DISP = 1e-6 * jnp.sin(jnp.pi * _TS / _TS[-1])
+
+
+def _rheo(G0):
+    return jc.StandardModel(G0=G0, G1=2e5, eta1=1e4)
+
+
+_JIT_ENTRIES = {  # each depends on `G0`; those ending in `_c` take concrete lengths
+    "retract": lambda G0, p: jc.retract(_rheo(G0), p, 0.05, _TS, depth=1e-6, velocity=1e-4,
+                                        throw=False).force,
+    "retract_c": lambda G0, p: jc.retract(_rheo(G0), p, 0.05, _TS, depth=1e-6,
+                                          contact_radius=1e-6, velocity=1e-4,
+                                          throw=False).force,
+    "simulate": lambda G0, p: jc.simulate(_rheo(G0), p, 0.05, _TS, _DISP, grid=8,
+                                          throw=False).force,
+    "pull_off": lambda G0, p: jc.pull_off(p, effective_modulus=4 * G0,
+                                          work_of_adhesion=0.05).force,
+    "jkr_force": lambda G0, p: jc.jkr_force(p, 1e-6 * G0 / 1e6, effective_modulus=4 * G0,
+                                            work_of_adhesion=0.05),
+    "jkr_force_c": lambda G0, p: jc.jkr_force(p, 1e-6, effective_modulus=4 * G0,
+                                              work_of_adhesion=0.05),
+    "jkr_displacement_c": lambda G0, p: jc.jkr_displacement(
+        p, 1e-6, effective_modulus=4 * G0, work_of_adhesion=0.05),
+    "jkr_contact_radius_c": lambda G0, p: jc.jkr_contact_radius(
+        p, 1e-7, effective_modulus=4 * G0, work_of_adhesion=0.05),
+    "profile_radius": lambda G0, p: jc.profile_radius(p, 1e-6 * G0 / 1e6, throw=False),
+    "profile_radius_c": lambda G0, p: G0 * jc.profile_radius(p, 1e-6),
+    "profile_validity": lambda G0, p: jc.profile_validity(p, 1e-6 * G0 / 1e6).fraction,
+    "contact_pressure_c": lambda G0, p: jc.contact_pressure(
+        p, jnp.linspace(0.0, 1e-6, 5), 1e-6, effective_modulus=4 * G0, work_of_adhesion=0.05),
+}
+
+
+def _jit_entries(G0, p, names=tuple(_JIT_ENTRIES)):
+    """The entry points that take a profile, at parameters that depend on `G0`."""
+    return {k: _JIT_ENTRIES[k](G0, p) for k in names}
+
+
+@pytest.mark.parametrize("name", sorted(JIT_PROFILES))
+def test_entry_points_trace_with_the_profile_closed_over_or_traced(name):
+    # The eager checks run on concrete values; inside a caller's `jit` every operation on a
+    # concrete array is traced as well, so a check that computed a profile's limit with
+    # `jnp` and converted it with `float()` failed at trace time (the exact sphere's depth
+    # limit in `retract` and `simulate`; every bounded profile's largest radius in the JKR
+    # relations given a concrete radius). Traced only (no compilation).
+    p = JIT_PROFILES[name]
+    closed = jax.jit(lambda G0: _jit_entries(G0, p)).trace(1e6).out_info
+    passed = jax.jit(_jit_entries).trace(1e6, p).out_info
+    eager = jax.eval_shape(lambda: _jit_entries(jnp.asarray(1e6), p))
+    for key in eager:
+        assert closed[key].shape == passed[key].shape == eager[key].shape, key
+
+
+def test_exact_sphere_inside_jit_equals_eager_and_checks_a_concrete_depth():
+    s = JIT_PROFILES["sphere"]
+    cheap = ("pull_off", "jkr_force", "jkr_force_c", "jkr_displacement_c",
+             "jkr_contact_radius_c", "profile_radius", "profile_radius_c", "profile_validity",
+             "contact_pressure_c")
+    got = jax.jit(lambda G0: _jit_entries(G0, s, cheap))(1e6)
+    ref = _jit_entries(jnp.asarray(1e6), s, cheap)
+    for key in cheap:
+        np.testing.assert_allclose(got[key], ref[key], rtol=1e-12)
+    # a concrete indentation beyond the sphere's limit, closed over in a `jit`, is refused
+    # eagerly (at trace time), naming the argument, as outside it
+    deep = jnp.full_like(_TS, 2.0 * R)
+    with pytest.raises(ValueError, match="displacement.*beyond the limit of the exact sphere"):
+        jax.jit(lambda G0: jc.simulate(_rheo(G0), s, 0.05, _TS, deep, grid=8).force).trace(1e6)
+    with pytest.raises(ValueError, match="depth.*beyond the limit of the exact sphere"):
+        jax.jit(lambda G0: jc.retract(_rheo(G0), s, 0.05, _TS, depth=2.0 * R,
+                                      velocity=1e-4).force).trace(1e6)

@@ -1,9 +1,9 @@
 """The forward model inside a user's sharded program: ``jit(vmap(f), out_shardings=...)`` over
 inputs sharded on 4 virtual CPU devices, in JAX's automatic and explicit axis modes, gives
 the values of the plain ``vmap`` (`jaxcontact._sharding`): `retract`, the elastic
-functions, `simulate`, `bem_simulate` and the fitting objective (residuals and their
-Jacobian, `fitting.residuals`), each closing over a time grid created before the
-mesh (as a user's program does). The devices must be set before JAX
+functions, `simulate` (both also with the exact sphere), `bem_simulate` and the fitting
+objective (residuals and their Jacobian, `fitting.residuals`), each closing over a time grid
+created before the mesh (as a user's program does). The devices must be set before JAX
 starts, so the check runs in a fresh interpreter."""
 
 import os
@@ -43,6 +43,15 @@ SCRIPT = textwrap.dedent('''
         s = jc.simulate(rh(G0), prof, 0.05, ts, disp, grid=16, throw=False)
         return s.force, s.result._value
 
+    # the exact sphere (its own roots and eager depth check), closed over as a user would
+    sphere = jc.Sphere(R=5e-6)
+
+    def f_sphere(G0):
+        s = jc.simulate(rh(G0), sphere, 0.05, ts, disp, grid=16, throw=False)
+        r = jc.retract(rh(G0), sphere, work_of_adhesion=0.05, depth=4e-6, velocity=1e-4,
+                       ts=ts, throw=False)
+        return s.force, s.result._value, r.force, r.jumpoff_time, r.result._value
+
     bem_grid = jc.BEMGrid(16, 4e-5)
 
     def f_bem(G0):
@@ -70,7 +79,7 @@ SCRIPT = textwrap.dedent('''
 
     cases = [(mode, name, f) for mode in ("auto", "explicit")
              for name, f in (("retract", f_retract), ("elastic", f_elastic),
-                             ("simulate", f_simulate), ("bem", f_bem),
+                             ("simulate", f_simulate), ("sphere", f_sphere), ("bem", f_bem),
                              ("objective", f_objective))]
     for mode, name, f in cases:
         kind = AxisType.Explicit if mode == "explicit" else AxisType.Auto
@@ -95,4 +104,4 @@ def test_forward_model_inside_sharded_jit_vmap(tmp_path):
     out = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True,
                          env=env, timeout=1800)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert out.stdout.count(" ok") == 10, out.stdout
+    assert out.stdout.count(" ok") == 12, out.stdout

@@ -299,22 +299,30 @@ def convex_root(
     Newton's method from `start` $\ge \min(x^*, \mathrm{hi})$: the tangent of a convex
     function lies below it, so every iterate stays to the right of the root and the
     iterates decrease monotonically onto it (onto `lo` when the root lies below it; a root
-    above `hi` gives `hi`). `steps` (static) iterations written out in the program, without
-    a loop or a convergence test: under `vmap` a `while` loop runs every lane to the
-    slowest, and each of its iterations costs a dispatch of every kernel; the caller picks
-    `steps` from a measured worst case. Differentiated implicitly
-    (`jax.lax.custom_root`), as `bracketed_root` (also at a clipped end).
+    above `hi` gives `hi`). Exactly `steps` (static) iterations, without a convergence
+    test (a lane-dependent `while` under `vmap` runs every lane to the slowest); the caller
+    picks `steps` from a measured worst case. The iteration is traced once: on the CPU a
+    loop of `steps` trips (its program smaller and compiled faster than the iterations
+    written out, and as fast: `benchmarks/results/fit.md`, "The exact sphere's stationary
+    radius in a loop"), on other platforms written out at lowering (straight-line code that
+    XLA fuses; a GPU pays a launch per kernel and iteration of a loop). Differentiated
+    implicitly (`jax.lax.custom_root`), as `bracketed_root` (also at a clipped end).
     """
     lo = lax.stop_gradient(lo)
     hi = lax.stop_gradient(hi)
 
     def solve(f, x0):
         x = jnp.clip(lax.stop_gradient(x0), lo, hi)
-        for _ in range(steps):
+
+        def body(_, x):
             fx, dfx = jax.jvp(f, (x,), (jnp.ones_like(x),))
             newton = x - fx / jnp.where(dfx > 0, dfx, 1.0)
-            x = jnp.where((dfx > 0) & jnp.isfinite(newton), jnp.clip(newton, lo, hi), x)
-        return x
+            return jnp.where((dfx > 0) & jnp.isfinite(newton), jnp.clip(newton, lo, hi), x)
+
+        # the platform is the compiled program's (`lax.platform_dependent`), not the default
+        return lax.platform_dependent(
+            x, cpu=lambda x: lax.fori_loop(0, steps, body, x),
+            default=lambda x: lax.fori_loop(0, steps, body, x, unroll=True))
 
     return lax.custom_root(fn, start, solve, _divide_by_slope)
 

@@ -287,3 +287,29 @@ def test_convex_root_from_the_right_and_clipped_ends(dtype):
         r = brentq(lambda x: x**1.5 * (1 + x * x) - 0.3, 0.0, 2.0, xtol=1e-30, rtol=1e-15)
         d = jax.grad(lambda q: convex_root(f(q), 0.3 ** (2 / 3), 0.0, 2.0, steps=8))(0.3)
         np.testing.assert_allclose(d, 1.0 / (1.5 * r**0.5 + 3.5 * r**2.5), rtol=1e-12)
+
+
+def test_convex_root_runs_its_steps_in_a_loop_on_the_cpu_written_out_elsewhere():
+    # exactly `steps` Newton iterations from the start, clipped to the bracket: against the
+    # iteration written out in NumPy (after 1 and 3 steps far from converged, so a missing or
+    # extra iteration shows)
+    def f(x, q):
+        return x**1.5 * (1 + x * x) - q
+
+    def newton(q, x, steps):
+        for _ in range(steps):
+            fx, dfx = f(x, q), 1.5 * x**0.5 + 3.5 * x**2.5
+            x = min(max(x - fx / dfx, 0.0), 2.0)
+        return x
+
+    for q in (1e-3, 0.3, 2.0):
+        for steps in (1, 3, 8):
+            got = float(convex_root(lambda x, q=q: f(x, q), q ** (2 / 3), 0.0, 2.0, steps=steps))
+            np.testing.assert_allclose(got, newton(q, q ** (2 / 3), steps), rtol=1e-13)
+    # the program: one loop on the CPU, straight-line code for a GPU (lowered here for CUDA
+    # without one: `lowering_platforms`), the same under `vmap`
+    traced = jax.jit(jax.vmap(lambda q: convex_root(lambda x: f(x, q), q ** (2 / 3), 0.0, 2.0,
+                                                    steps=8))).trace(jnp.linspace(0.1, 2.0, 4))
+    loops = {p: traced.lower(lowering_platforms=(p,)).as_text().count("stablehlo.while")
+             for p in ("cpu", "cuda")}
+    assert loops == {"cpu": 1, "cuda": 0}, loops

@@ -78,13 +78,23 @@ EXIT_STATUS = """exit status:
   1  an unexpected error
 """
 
+DEVICES = """devices:
+  the fit runs on JAX's default backend (a GPU where jax has CUDA). One curve, or a few,
+  fits faster on the host's CPU: its search is a sequence of small steps and a GPU
+  compiles slower (the README's main job took 57 s on an NVIDIA H100 against 25 s on a
+  2-core CPU, 2026-11-27): JAX_PLATFORMS=cpu jaxcontact fit ... runs it there. Force maps
+  fill a GPU (a relaxed-model map of 16,384 curves: 269 curves/s on the H100, 108 on the
+  2-core CPU).
+"""
+
 
 def add_parser(sub, common) -> None:
     import argparse
 
     p = sub.add_parser("fit", parents=[common],
                        help="identify the rheology and the work of adhesion from force curves",
-                       epilog=EXIT_STATUS, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       epilog=EXIT_STATUS + "\n" + DEVICES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_fit_arguments(p)
     p.set_defaults(func=run)
 

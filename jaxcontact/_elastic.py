@@ -30,7 +30,8 @@ from ._checks import (
     traced_checks,
 )
 from ._criteria import hess_coefficient
-from ._profiles import AbstractProfile, front_displacement
+from ._probes import check_depth_limit
+from ._profiles import AbstractProfile, compiled_contact_radius, front_displacement
 from ._solution import RESULTS, fold_results, is_error, raise_if_error
 from ._solvers import as_float, cast_floats, float64_scope, float_dtype, gauss_legendre_unit
 from ._validate import (
@@ -183,11 +184,13 @@ def profile_radius(
     dtype = float_dtype(profile, depth)
     profile, depth = cast_floats((profile, as_float(depth)), dtype)
     with unchecked():
-        out = profile.contact_radius(depth)
         if is_concrete((profile, depth)):
+            check_depth_limit("depth", profile, depth)  # (the exact sphere's, by name)
+            out = compiled_contact_radius(profile, depth)
             _check_finite_result("profile_radius", out)
             check_contact_radius(profile, out, "`depth`")
             return out
+        out = profile.contact_radius(depth)
         checks = _traced_checks(profile, ())
         if plausibility_enabled():
             checks.append((plausible(depth, "length"), RESULTS.implausible_input))

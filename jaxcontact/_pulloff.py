@@ -71,7 +71,7 @@ from ._checks import (
 from ._criteria import relaxed_front_coefficient
 from ._method import AbstractMethod, DiffraxODE, ExactUpdate
 from ._probes import check_depth_limit, depth_limit
-from ._profiles import AbstractProfile, front_displacement
+from ._profiles import AbstractProfile, compiled_contact_radius, front_displacement
 from ._rheology import AbstractRheology
 from ._root import bracketed_root
 from ._sharding import pick
@@ -226,11 +226,6 @@ def retract(
     return _retract(*args, method, throw, check_plausibility)
 
 
-@eqx.filter_jit
-def _relaxed_radius(profile, depth):
-    """The non-adhesive radius $g(a_0) = d_0$ (compiled: a bracketed root for profiles
-    without a closed form)."""
-    return profile.contact_radius(depth)
 
 
 def _number(value) -> str:
@@ -278,7 +273,7 @@ def _requirements(rheology, profile, dgamma, depth, ts, velocity, displacement,
             check_contact_radius(profile, contact_radius,
                                  f"`contact_radius` = {_number(contact_radius)} m")
         elif is_concrete((profile, depth)):
-            check_contact_radius(profile, _relaxed_radius(profile, as_float(depth)),
+            check_contact_radius(profile, compiled_contact_radius(profile, as_float(depth)),
                                  f"`depth` = {_number(depth)} m")
 
     out = [domain(rheology, RESULTS.invalid_rheology),

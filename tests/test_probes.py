@@ -87,6 +87,20 @@ def test_sneddon_sphere_depth_and_force():
     np.testing.assert_allclose(da, fd, rtol=1e-7)
 
 
+def test_eager_profile_radius_compiles_once_for_new_values(monkeypatch):
+    # eagerly, `profile_radius` runs one compiled program per profile class (its bracketed
+    # root op by op took 0.15-0.4 s a call): new radii and depths are arguments, the Python
+    # of the root is traced at most once, and the radii are Sneddon's
+    traces = []
+    inner = jc.Sphere.contact_radius
+    monkeypatch.setattr(jc.Sphere, "contact_radius",
+                        lambda self, depth, **kw: traces.append(1) or inner(self, depth, **kw))
+    for radius, fraction in ((R, 0.3), (2 * R, 0.5), (0.5 * R, 0.7), (R, 0.9)):
+        got = jc.profile_radius(jc.Sphere(radius), sneddon_depth(fraction * radius, radius))
+        np.testing.assert_allclose(got, fraction * radius, rtol=1e-12)
+    assert len(traces) <= 1, len(traces)
+
+
 def test_sphere_against_nanite_series():
     # nanite's (and JPK's) truncated series of Sneddon's sphere, F(delta), E/(1 - nu^2) = E*
     s = jc.Sphere(R)

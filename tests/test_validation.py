@@ -465,6 +465,15 @@ curve = fitting.Curve(time=ts, displacement=np.asarray(sol.displacement),
 spec = fitting.make_spec()
 data = fitting.prepare_curves([curve], spec, radius=1e-4)
 r = fitting.residuals(np.array([1e6, 2e5, 1e4, 0.05]), data, spec)
+# every profile and rheology built and used eagerly, without a warning (a table's checks
+# warned of float64 truncated to float32)
+xs = np.linspace(0.0, 3e-5, 64)
+for p in (jc.Sphere(4e-5), jc.Cone(1.2), jc.pyramid(1.2), jc.PowerLaw(1e10, 3.0),
+          jc.FlatPunch(1e-5), jc.Tabulated(xs, xs**2 / 8e-5)):
+    assert jc.profile_radius(p, 1e-6).dtype == np.float64, p
+for rheo in (jc.PronySeries(1e5, np.array([1e5, 2e5]), np.array([0.1, 1.0])),
+             jc.CreepChain(1e6, np.array([1e5]), np.array([1e4])), jc.Elastic(1e6)):
+    assert rheo.relaxation(np.array([0.0, 1.0])).dtype == np.float64, rheo
 print(jax.config.jax_enable_x64, sol.force.dtype, float(po.force), sim.force.dtype,
       jnp.ones(2).dtype, f32.dtype, data.ts.dtype, r.dtype, float(np.max(np.abs(r))))
 """

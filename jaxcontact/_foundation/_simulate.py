@@ -22,7 +22,7 @@ from .._checks import (
 )
 from .._method import AbstractMethod, ExactUpdate
 from .._probes import check_depth_limit, depth_limit
-from .._profiles import AbstractProfile
+from .._profiles import AbstractProfile, compiled_contact_radius
 from .._rheology import AbstractRheology
 from .._sharding import pick
 from .._solution import (
@@ -149,7 +149,7 @@ def simulate(
         # the largest non-adhesive radius of the history (the adhesive one, reported by the
         # solution's status, is a little larger); skipped inside a caller's trace
         deepest = max(float(np.max(np.asarray(u))), 0.0)
-        check_contact_radius(profile, _touch_radius(profile, deepest),
+        check_contact_radius(profile, compiled_contact_radius(profile, deepest),
                              f"`displacement` up to {deepest:g} m")
 
     # one compiled program serves every call with the same configuration (types, static
@@ -183,9 +183,6 @@ def simulate(
     return sol
 
 
-@eqx.filter_jit
-def _touch_radius(profile, depth):
-    return profile.contact_radius(depth)
 
 
 def _requirements(rheology, profile, work_of_adhesion, ts, u, loading, grid,

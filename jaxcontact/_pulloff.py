@@ -226,8 +226,6 @@ def retract(
     return _retract(*args, method, throw, check_plausibility)
 
 
-
-
 def _number(value) -> str:
     return f"{float(np.asarray(value)):g}" if is_concrete(value) else "(traced)"
 

@@ -183,8 +183,6 @@ def simulate(
     return sol
 
 
-
-
 def _requirements(rheology, profile, work_of_adhesion, ts, u, loading, grid,
                   check_plausibility):
     """The `Requirement` of every input, in the order of the arguments (the eager checks

@@ -90,6 +90,8 @@ import jax.numpy as jnp
 from jax import lax
 from jax.custom_batching import custom_vmap
 
+from ._validate import is_concrete
+
 __all__ = ["any_lane", "compiled", "cond", "forward_only", "on_mesh", "pick", "scan",
            "searchsorted", "seeded", "switch", "while_loop"]
 
@@ -313,9 +315,7 @@ def compiled(jitted, plain):
 
         @functools.wraps(plain)
         def twin(*args, **kwargs):
-            traced = any(isinstance(x, jax.core.Tracer)
-                         for x in jax.tree_util.tree_leaves((args, kwargs)))
-            return (plain if traced else jit_twin)(*args, **kwargs)
+            return (jit_twin if is_concrete((args, kwargs)) else plain)(*args, **kwargs)
 
         twin = _FORWARD_TWINS.setdefault(plain, twin)
     return twin

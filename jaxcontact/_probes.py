@@ -31,10 +31,11 @@ from ._profiles import (
     FlatPunch,
     Parabola,
     PowerLaw,
+    front_displacement,
     numerical_contact_radius,
-    numerical_front_radius,
+    parabola_stable_radius,
 )
-from ._root import bracketed_root, convex_root
+from ._root import bracketed_root, convex_root, fold_root
 from ._solvers import as_float, float64_scope
 from ._validate import Constraint, concrete_float, float_field, guarded, is_concrete
 
@@ -97,6 +98,13 @@ def _sphere_integral(s):
 #: paraboloid's value; worst start over roots s = x/R in [1e-8, 0.95] and every bracket
 #: end: relative error 2.5e-7 after 6 steps, 3e-16 after 8)
 _STATIONARY_STEPS = 8
+
+
+#: Newton steps of the exact sphere's detachment front (`fold_root` from the paraboloid's
+#: stable root): over c/sqrt(R) in [1e-7, 20] (folds from 1e-5 R to 0.94 R) and roots from
+#: 1e-12 of the fold to 0.95 R, 5 steps agree with Brent's method to the root's
+#: conditioning (`tests/test_probes.py`, within 0.6 of that bound); 4 miss it 1e6-fold
+_FRONT_STEPS = 5
 
 
 def _psi(s):
@@ -215,7 +223,20 @@ class Sphere(AbstractCurvedProfile):
         return jnp.minimum(a, self.max_radius)
 
     def front_radius(self, m, c, lo, hi=None):
-        return numerical_front_radius(self, m, c, lo, hi)
+        # the root right of the fold `lo` by `fold_root` from the paraboloid's stable root
+        # (closed form, `parabola_stable_radius`; h >= the paraboloid's, so it lies at or
+        # right of the sphere's root, by ~ s^2/3 of the radius, s = a/R)
+        top = self.max_radius if hi is None else jnp.minimum(hi, self.max_radius)
+        R = lax.stop_gradient(self.R)
+        c_start = lax.stop_gradient(as_float(c))
+
+        def one(mm):
+            start = parabola_stable_radius(lax.stop_gradient(mm), c_start, R)
+            return fold_root(lambda a: front_displacement(self, a, c) - mm, start, lo, top,
+                             steps=_FRONT_STEPS)
+
+        m = as_float(m)
+        return jax.vmap(one)(jnp.ravel(m)).reshape(m.shape)
 
     def stationary_radius(self, q, lo, hi):
         # sqrt(x) g'(x) = q  <=>  psi(s) = q / sqrt(R) at s = x / R (`_psi`); psi >= 2 s^1.5,

@@ -67,6 +67,7 @@ __all__ = [
     "PositionCoordinate",
     "TouchCoordinate",
     "front_displacement",
+    "parabola_stable_radius",
     "power_law_factor",
 ]
 
@@ -467,7 +468,10 @@ def _rcbrt_positive(y):
 
 
 @jax.custom_jvp
-def _parabola_stable_radius(m, c, R):
+def parabola_stable_radius(m, c, R):
+    r"""The stable root $a$ [m] of the paraboloid's front $a^2/R - c\sqrt a = m$ in closed
+    form (Ferrari; `Parabola.front_radius`, and the start of the exact sphere's), any
+    broadcast shapes; an `m` below the front's minimum gives the fold radius."""
     # Nondimensionalise a = lam^2 s^2 with lam^3 = c R: s^4 - s = mu = R m / lam^4.
     lam = jnp.cbrt(c * R)
     mu = R * m / lam**4
@@ -503,11 +507,11 @@ def _parabola_stable_radius(m, c, R):
     return (lam * s) ** 2
 
 
-@_parabola_stable_radius.defjvp
-def _parabola_stable_radius_jvp(primals, tangents):
+@parabola_stable_radius.defjvp
+def parabola_stable_radius_jvp(primals, tangents):
     m, c, R = primals
     dm, dc, dR = tangents
-    a = _parabola_stable_radius(m, c, R)
+    a = parabola_stable_radius(m, c, R)
     sa = jnp.sqrt(a)
     dh_da = 2 * a / R - 0.5 * c / sa
     # h(a; c, R) = a^2/R - c sqrt(a) = m  =>  h_a da = dm + sqrt(a) dc + a^2/R^2 dR
@@ -605,7 +609,7 @@ class Parabola(AbstractPowerLawProfile):
         return self.R
 
     def front_radius(self, m, c, lo, hi=None):
-        return _parabola_stable_radius(m, c, self.R)
+        return parabola_stable_radius(m, c, self.R)
 
 
 class Cone(AbstractPowerLawProfile):

@@ -206,14 +206,14 @@ def test_parabola_front_root_solves_the_quartic(dtype):
     # a^2/R - c sqrt(a) = m on the stable branch, from the fold to deep compression (weak
     # adhesion: a / a_fold up to 1e9, where Cardano's u + v cancels if written naively and
     # mu^3 overflows float32)
-    from jaxcontact._profiles import _parabola_stable_radius
+    from jaxcontact._profiles import parabola_stable_radius
 
     R, c = 1e-4, 3e-5
     a_fold = (c * R / 4) ** (2 / 3)
     a = a_fold * np.concatenate([1 + np.logspace(-6, 0, 50), np.logspace(0.3, 9, 60)])
     m = a**2 / R - c * np.sqrt(a)
     args = (jnp.asarray(m, dtype), jnp.asarray(c, dtype), jnp.asarray(R, dtype))
-    got = np.asarray(jax.jit(_parabola_stable_radius)(*args))
+    got = np.asarray(jax.jit(parabola_stable_radius)(*args))
     assert got.dtype == dtype  # no silent promotion
     got = got.astype(np.float64)
     # the tolerance follows the root's relative condition number: rounding m's two terms

@@ -1,5 +1,5 @@
 """Tests of the scalar root finders (`jaxcontact._root`: `bracketed_root`, `concave_root`,
-`convex_root`)."""
+`convex_root`, `fold_root`)."""
 
 import math
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from jaxcontact._root import bracketed_root, concave_root, convex_root
+from jaxcontact._root import bracketed_root, concave_root, convex_root, fold_root
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
@@ -313,3 +313,48 @@ def test_convex_root_runs_its_steps_in_a_loop_on_the_cpu_written_out_elsewhere()
     loops = {p: traced.lower(lowering_platforms=(p,)).as_text().count("stablehlo.while")
              for p in ("cpu", "cuda")}
     assert loops == {"cpu": 1, "cuda": 0}, loops
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_fold_root_is_regular_at_the_fold(dtype):
+    # cosh(x) = m on [0, hi]: the minimum (fold) at lo = 0, a double root as m -> 1. From
+    # the start min(1.5 sqrt(2 (m - 1)), log(2 m) + 1) (to the right of the root, 50 % off
+    # at the fold: cosh x - 1 >= x^2/2, cosh x >= e^x / 2), 5 steps reach NumPy's arccosh to
+    # the root's conditioning
+    # (the rounding of cosh: eps / sinh x, at the fold sqrt(8 eps)) from m - 1 = 1e-14 to
+    # m = 1e4; Newton on cosh x - m itself from the same start (`convex_root`, the same
+    # steps) is still 1e3 times that far off near the fold, where it halves its error each
+    # step.
+    eps = float(jnp.finfo(dtype).eps)
+    m = 1.0 + np.geomspace(1e-14 if dtype == jnp.float64 else 1e-6, 1e4, 60)
+    m = m.astype(dtype)
+    want = np.arccosh(m.astype(np.float64))
+    hi = dtype(12.0)
+
+    def start(mm):
+        return jnp.minimum(1.5 * jnp.sqrt(2.0 * (mm - 1.0)), jnp.log(2.0 * mm) + 1.0)
+
+    def solve(root):
+        return jax.jit(jax.vmap(lambda mm: root(lambda x: jnp.cosh(x) - mm, start(mm))))(m)
+
+    got = solve(lambda f, x0: fold_root(f, x0, dtype(0.0), hi, steps=5))
+    assert got.dtype == dtype
+    x = want
+    tol = 8 * eps * x + np.minimum(4 * eps * np.cosh(x) / np.sinh(x), np.sqrt(8 * eps))
+    assert np.all(np.abs(np.asarray(got, np.float64) - want) <= tol), \
+        np.max(np.abs(np.asarray(got, np.float64) - want) / tol)
+    if dtype == jnp.float64:  # (float32's sqrt(8 eps) at the fold hides Newton's 2^-5)
+        newton = solve(lambda f, x0: convex_root(f, x0, dtype(0.0), hi, steps=5))
+        assert np.max(np.abs(np.asarray(newton, np.float64) - want) / tol) > 100
+    # no root in the bracket: lo (m below the minimum), hi (the root beyond it)
+    f = lambda mm: lambda x: jnp.cosh(x) - mm  # noqa: E731
+    assert float(fold_root(f(dtype(0.5)), dtype(0.1), dtype(0.0), hi, steps=5)) == 0.0
+    assert float(fold_root(f(dtype(1e6)), dtype(14.0), dtype(0.0), dtype(3.0), steps=5)) == 3.0
+    # implicit derivative: d arccosh(m) / dm = 1 / sinh(x)
+    if dtype == jnp.float64:
+        d = jax.grad(lambda mm: fold_root(f(mm), start(mm), 0.0, 12.0, steps=5))(3.0)
+        np.testing.assert_allclose(d, 1.0 / np.sinh(np.arccosh(3.0)), rtol=1e-12)
+    # written out: no loop in the program
+    text = jax.jit(jax.vmap(lambda mm: fold_root(f(mm), start(mm), dtype(0.0), hi,
+                                                 steps=5))).lower(m).as_text()
+    assert "stablehlo.while" not in text

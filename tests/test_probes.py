@@ -215,6 +215,43 @@ def test_sphere_stationary_radius_against_brent():
     np.testing.assert_allclose(got32, want, rtol=3e-6, atol=1e-30)
 
 
+def test_sphere_contact_radius_on_a_bracket_to_round_off():
+    """The non-adhesive radius g(a) = d on a bracket (the cells of `simulate`'s foundation
+    grid: `GapCoordinate.zeta_inverse`) and without one: the depths made from radii from
+    1e-8 R to 0.95 R by NumPy (d = a artanh(a/R), 0.8 ulp), so that each radius is its
+    depth's root to ~1 ulp; brackets from the whole admitted range down to 1 % about the
+    root. (XLA's own `atanh` errs by up to 68 ulp on the CPU and put radii 3.5e-15 off.)
+    A root outside the bracket gives its end; the implicit derivative 1/g'(a); float32."""
+    s = jc.Sphere(R)
+    want = np.sort(np.concatenate([np.geomspace(1e-8, 0.95, 120), np.linspace(0.3, 0.6, 200)]))
+    d = R * want * np.arctanh(want)
+    ref = want
+    np.testing.assert_allclose(jax.jit(lambda d: s.contact_radius(d))(d), ref * R, rtol=1e-15)
+    rng = np.random.default_rng(1)
+    for width in (None, 0.3, 0.01):
+        if width is None:
+            lo, hi = np.zeros_like(ref), np.full_like(ref, 0.95)
+        else:
+            lo = ref * (1 - width * rng.uniform(0.0, 1.0, ref.size))
+            hi = np.minimum(ref * (1 + width * rng.uniform(0.0, 1.0, ref.size)), 0.95)
+        got = jax.jit(lambda d, lo, hi: s.contact_radius(d, lo=lo, hi=hi))(d, lo * R, hi * R)
+        np.testing.assert_allclose(got, ref * R, rtol=1e-15)
+    # outside the bracket: its ends
+    a = s.contact_radius(d[60], lo=0.0, hi=0.5 * ref[60] * R)
+    assert float(a) == 0.5 * ref[60] * R
+    assert float(s.contact_radius(d[60], lo=2 * ref[60] * R, hi=0.9 * R)) == 2 * ref[60] * R
+    # da/dd = 1/g'(a) = 1/(artanh(s) + s/(1 - s^2))
+    x = ref[80]
+    np.testing.assert_allclose(
+        jax.grad(lambda d: s.contact_radius(d, lo=0.0, hi=0.95 * R))(d[80]),
+        1.0 / (np.arctanh(x) + x / (1 - x * x)), rtol=1e-12)
+    s32 = jc.Sphere(np.float32(R))
+    got32 = s32.contact_radius(d.astype(np.float32), lo=np.float32(0.0),
+                               hi=np.float32(0.95 * R))
+    assert got32.dtype == np.float32
+    np.testing.assert_allclose(got32, ref * R, rtol=2e-6)
+
+
 def _sphere_front_reference(c, R):
     """Sneddon's front h(x) = (x/2) ln((R+x)/(R-x)) - c sqrt(x), its fold (the root of h',
     Brent) and its stable roots (Brent on [fold, 0.95 R]): NumPy and SciPy only."""

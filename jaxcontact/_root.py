@@ -344,8 +344,9 @@ def fold_root(
     increases on `[lo, hi]`; the root where `fn` rises through zero, clipped to the bracket.
 
     Near the fold the root is a near-double root: Newton's method on `fn` itself converges
-    linearly there (halving its error each step) and a bracketed iteration needs 10-30
-    steps. With $f_0 = f(\mathrm{lo}) \le 0$ this solves instead
+    linearly there (halving its error each step), and `bracketed_root` took 6-13 iterations
+    on a force map's samples and 34 at $10^{-7}$ of the fold (the exact sphere's front).
+    With $f_0 = f(\mathrm{lo}) \le 0$ this solves instead
     $$U(x) = \sqrt{f(x) - f_0} - \sqrt{-f_0} = 0,$$
     the same root ($f(x) = 0$), where $U$ is regular: near the fold
     $f - f_0 \approx \tfrac12 f''(\mathrm{lo})(x - \mathrm{lo})^2$, so $U$ is nearly

@@ -75,9 +75,10 @@ TABOR_SEPARATION = 3e-10
 @jax.custom_jvp
 def _artanh(s):
     r"""$\operatorname{artanh}s = \tfrac12\log\bigl(1 + \tfrac{2s}{1-s}\bigr)$ for
-    $0 \le s < 1$, to 1.4 ulp in float64 (XLA's `atanh` on the CPU errs by up to 68 ulp
-    near $s = 0.41$, measured against mpmath; this form is also 1.3× faster there), with
-    the derivative $1/((1-s)(1+s))$ (not that of the quotient)."""
+    $0 \le s < 1$, within 3 ulp in float64 (XLA's `atanh` on the CPU errs by up to 128
+    ulp near $s = 0.414$, 20,000 points against mpmath, as does its `log1p` of negative
+    arguments; of positive ones, as here, within 2 ulp; this form is also 1.3× faster),
+    with the derivative $1/((1-s)(1+s))$ (not that of the quotient)."""
     return 0.5 * jnp.log1p(2.0 * s / (1.0 - s))
 
 

@@ -351,8 +351,10 @@ def fold_root(
     the same root ($f(x) = 0$), where $U$ is regular: near the fold
     $f - f_0 \approx \tfrac12 f''(\mathrm{lo})(x - \mathrm{lo})^2$, so $U$ is nearly
     linear with slope $U' = f'/(2\sqrt{f - f_0}) \to \sqrt{f''(\mathrm{lo})/2}$ (used where
-    $f = f_0$). Newton on $U$ from `start`, each iterate clipped to `[lo, hi]`, exactly
-    `steps` (static) iterations written out, without a convergence test (under `vmap` a
+    $f = f_0$). Newton on $U$ from `start`, each step clipped to `lo` and the nearest point
+    evaluated right of the root (next to the fold $U'$ is a ratio of round-off, and the
+    step from it may land anywhere),
+    exactly `steps` (static) iterations written out, without a convergence test (under `vmap` a
     loop runs every lane to the slowest, and each of its iterations is a pass over memory;
     written out, XLA fuses the iterations into one element-wise pass). The caller picks
     `start` (a closed form of a nearby problem) and `steps` from a measured worst case.
@@ -374,12 +376,21 @@ def fold_root(
         slope_at_fold = jnp.sqrt(jnp.maximum(0.5 * curvature, 0.0))
         x = jnp.clip(lax.stop_gradient(x0), lo, hi)
         x = jnp.where(jnp.isfinite(x), x, hi)
+        right = hi  # the nearest point known to lie right of the root (U > 0 there)
         for _ in range(steps):
             fx, dfx = jax.jvp(f, (x,), (jnp.ones_like(x),))
             u = jnp.sqrt(jnp.maximum(fx - f0, 0.0))
-            du = jnp.where(u > 0, dfx / (2.0 * jnp.where(u > 0, u, 1.0)), slope_at_fold)
-            newton = x - (u - rise) / jnp.where(du > 0, du, 1.0)
-            x = jnp.where((du > 0) & jnp.isfinite(newton), jnp.clip(newton, lo, hi), x)
+            r = u - rise
+            right = jnp.where(r > 0, x, right)
+            # U' = f'/(2u) is 0/0 at the fold: its limit there; next to it both are
+            # round-off (f and f0 may come from differently fused code), and a step from
+            # their ratio may land anywhere: each step is clipped to [lo, right] (a step
+            # past the fold onto `lo`, where U' is known, is how a concave U converges)
+            du = jnp.where((u > 0) & (x > lo), dfx / (2.0 * jnp.where(u > 0, u, 1.0)),
+                           slope_at_fold)
+            newton = x - r / jnp.where(du > 0, du, 1.0)
+            ok = (du > 0) & jnp.isfinite(newton)
+            x = jnp.where(ok, jnp.clip(newton, lo, right), x)
         # f0 >= 0: the minimum reaches zero (the root is the fold) or there is no root
         return jnp.where(f0 >= 0, lo, x)
 

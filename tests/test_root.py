@@ -358,3 +358,32 @@ def test_fold_root_is_regular_at_the_fold(dtype):
     text = jax.jit(jax.vmap(lambda mm: fold_root(f(mm), start(mm), dtype(0.0), hi,
                                                  steps=5))).lower(m).as_text()
     assert "stablehlo.while" not in text
+
+
+def test_fold_root_round_off_next_to_the_fold_stays_bounded():
+    # x - c sqrt(x) = m (a cone's front): U = sqrt(f - f0) is concave, so Newton from the
+    # right steps past the fold and lands on `lo`. With `lo` a constant of the compiled
+    # program (closed over), f(lo) and f at the iterate x = lo come from differently
+    # compiled code and differ by round-off: U' = f'/(2u) was then a ratio of round-off and
+    # sent the iterate to 1.2e-4 for a root at 7.7e-13 (5e8 times too far). The fold's own
+    # slope is used at lo, and each step stays inside the bracket the evaluations narrow.
+    c = 1e-6
+    fold = (c / 2) ** 2
+
+    def want(m):  # sqrt(x) = (c + sqrt(c^2 + 4 m)) / 2, the stable root
+        return ((c + np.sqrt(c * c + 4 * m)) / 2) ** 2
+
+    def solve(m, lo, steps=6):
+        start = jnp.maximum(2 * jnp.maximum(m, 0.0), 4 * c * c)  # right of the root
+        return fold_root(lambda x: x - c * jnp.sqrt(x) - m, start, lo, jnp.inf, steps=steps)
+
+    x = fold * np.array([1 + 1e-6, 1.01, 1.5, 3.073, 10.0, 100.0])
+    m = x - c * np.sqrt(x)
+    ref = np.array([want(mm) for mm in m])
+    closed = jax.jit(jax.vmap(lambda mm: solve(mm, jnp.asarray(fold))))(m)
+    traced = jax.jit(jax.vmap(solve, in_axes=(0, None)))(m, fold)
+    eager = np.array([float(solve(mm, jnp.asarray(fold))) for mm in m])
+    # to round-off, but sqrt(eps) at 1e-6 of the fold (a near-double root)
+    tol = np.where(x < 1.001 * fold, 1e-8, 1e-13) * ref
+    for got in (closed, traced, eager):
+        assert np.all(np.abs(np.asarray(got) - ref) <= tol), np.abs(np.asarray(got) - ref) / ref

@@ -508,7 +508,7 @@ def parabola_stable_radius(m, c, R):
 
 
 @parabola_stable_radius.defjvp
-def parabola_stable_radius_jvp(primals, tangents):
+def _parabola_stable_radius_jvp(primals, tangents):
     m, c, R = primals
     dm, dc, dR = tangents
     a = parabola_stable_radius(m, c, R)

@@ -353,11 +353,11 @@ def fold_root(
     linear with slope $U' = f'/(2\sqrt{f - f_0}) \to \sqrt{f''(\mathrm{lo})/2}$ (used where
     $f = f_0$). Newton on $U$ from `start`, each step clipped to `lo` and the nearest point
     evaluated right of the root (next to the fold $U'$ is a ratio of round-off, and the
-    step from it may land anywhere),
-    exactly `steps` (static) iterations written out, without a convergence test (under `vmap` a
-    loop runs every lane to the slowest, and each of its iterations is a pass over memory;
-    written out, XLA fuses the iterations into one element-wise pass). The caller picks
-    `start` (a closed form of a nearby problem) and `steps` from a measured worst case.
+    step from it may land anywhere), exactly `steps` (static) iterations written out,
+    without a convergence test (under `vmap` a loop runs every lane to the slowest, and each
+    of its iterations is a pass over memory; written out, XLA fuses the iterations into one
+    element-wise pass). The caller picks `start` (a closed form of a nearby problem) and
+    `steps` from a measured worst case.
     With `fn` $= h - m$ batched in $m$ alone (`lo` and $h$ shared), $h(\mathrm{lo})$ and
     $f''(\mathrm{lo})$ are computed once under `vmap`. Where $f_0 \ge 0$ the result is `lo`
     (the root at the fold, or none); a root beyond `hi` gives `hi`. Differentiated

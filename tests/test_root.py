@@ -320,11 +320,10 @@ def test_fold_root_is_regular_at_the_fold(dtype):
     # cosh(x) = m on [0, hi]: the minimum (fold) at lo = 0, a double root as m -> 1. From
     # the start min(1.5 sqrt(2 (m - 1)), log(2 m) + 1) (to the right of the root, 50 % off
     # at the fold: cosh x - 1 >= x^2/2, cosh x >= e^x / 2), 5 steps reach NumPy's arccosh to
-    # the root's conditioning
-    # (the rounding of cosh: eps / sinh x, at the fold sqrt(8 eps)) from m - 1 = 1e-14 to
-    # m = 1e4; Newton on cosh x - m itself from the same start (`convex_root`, the same
-    # steps) is still 1e3 times that far off near the fold, where it halves its error each
-    # step.
+    # the root's conditioning (the rounding of cosh: eps / sinh x, at the fold sqrt(8 eps))
+    # from m - 1 = 1e-14 to m = 1e4; Newton on cosh x - m itself from the same start
+    # (`convex_root`, the same steps) is still more than 100 times that far off near the
+    # fold, where it halves its error each step.
     eps = float(jnp.finfo(dtype).eps)
     m = 1.0 + np.geomspace(1e-14 if dtype == jnp.float64 else 1e-6, 1e4, 60)
     m = m.astype(dtype)

@@ -10,7 +10,7 @@ r"""Scalar root finding with implicit differentiation (the one home of the root 
 - `fold_root`: the stable root of $h(x) = m$ right of the minimum (the fold) of $h$, by
   Newton's method on the square root of the rise above that minimum, where the root is
   regular even at the fold (a fixed number of steps from a close start, no loop under
-  `vmap`; the exact sphere's detachment front).
+  `vmap`; the detachment fronts of the exact sphere and the power law).
 - `newton_root`: damped Newton steps from a guess for an increasing function (the
   equilibrium of a compliant loading system), differentiated implicitly.
 - `newton_iterate`: the Newton iteration itself, with the caller's evaluation (residual,

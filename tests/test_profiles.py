@@ -102,3 +102,49 @@ def test_zero_force_radius_closed_form_against_root(prof):
     assert abs(float(force)) <= 1e-12 * float(prof.integral_g(a))
     # outside the bracket: clipped to its ends
     assert float(prof.zero_force_radius(c, 2 * closed, 3 * closed)) == pytest.approx(2 * closed)
+
+
+def test_power_law_front_radius_against_brent():
+    """A power law's detachment front h(a) = K a^n - c sqrt(a) = m (K from Gamma functions
+    here, not `power_law_factor`), n from 0.55 to 6 and c over nine decades, roots from
+    1e-12 of the fold to 1e6 times it, against Brent's method: within the root's own
+    conditioning (8 eps of the radius plus 16 eps |terms| / h', or at the fold
+    sqrt(8 eps |terms| / h'') where smaller); as `fold_root` is traced (no loop)."""
+    from scipy.optimize import brentq
+
+    eps = np.finfo(float).eps
+    worst = 0.0
+    for n in (0.55, 0.7, 1.0, 1.5, 2.0, 3.0, 6.0):
+        prof = jc.PowerLaw(c=2.0, n=n)
+        K = np.sqrt(np.pi) * gamma(n / 2 + 1) / gamma(n / 2 + 0.5) * 2.0
+        for c in (1e-6, 1e-3, 1.0, 1e3):
+            fold = (c / (2 * n * K)) ** (1 / (n - 0.5))
+
+            def h(a, c=c, K=K, n=n):
+                return K * a**n - c * np.sqrt(a)
+
+            def root(m, c=c, fold=fold, h=h):
+                if h(fold) >= m:
+                    return fold
+                hi = 2 * fold
+                while h(hi) < m:
+                    hi *= 2
+                return brentq(lambda x: h(x) - m, fold, hi, xtol=1e-300, rtol=8.9e-16,
+                              maxiter=1000)
+
+            a = np.concatenate([fold * (1 + np.geomspace(1e-12, 1e-1, 8)),
+                                fold * np.geomspace(1.2, 1e6, 12)])
+            m = h(a)
+            want = np.array([root(mm) for mm in m])
+            got = np.asarray(jax.jit(lambda m, c=c, fold=fold, prof=prof: prof.front_radius(
+                m, c, jnp.asarray(fold)))(m))
+            terms = K * a**n + c * np.sqrt(a)
+            dh = n * K * a ** (n - 1) - 0.5 * c / np.sqrt(a)
+            d2h = np.abs(n * (n - 1) * K * a ** (n - 2) + 0.25 * c * a**-1.5)
+            tol = 8 * eps * a + np.minimum(16 * eps * terms / np.maximum(dh, 1e-300),
+                                           np.sqrt(8 * eps * terms / d2h))
+            worst = max(worst, float(np.max(np.abs(got - want) / tol)))
+    assert worst <= 1.0, worst
+    text = jax.jit(lambda m: jc.PowerLaw(c=2.0, n=1.5).front_radius(m, 1.0, 0.01)).lower(
+        jnp.linspace(0.1, 1.0, 8)).as_text()
+    assert "stablehlo.while" not in text

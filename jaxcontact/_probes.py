@@ -31,10 +31,10 @@ from ._profiles import (
     FlatPunch,
     Parabola,
     PowerLaw,
-    front_displacement,
+    fold_front_radius,
     parabola_stable_radius,
 )
-from ._root import convex_root, fold_root
+from ._root import convex_root
 from ._solvers import as_float, float64_scope
 from ._validate import Constraint, concrete_float, float_field, guarded, is_concrete
 
@@ -253,14 +253,9 @@ class Sphere(AbstractCurvedProfile):
         top = self.max_radius if hi is None else jnp.minimum(hi, self.max_radius)
         R = lax.stop_gradient(self.R)
         c_start = lax.stop_gradient(as_float(c))
-
-        def one(mm):
-            start = parabola_stable_radius(lax.stop_gradient(mm), c_start, R)
-            return fold_root(lambda a: front_displacement(self, a, c) - mm, start, lo, top,
-                             steps=_FRONT_STEPS)
-
-        m = as_float(m)
-        return jax.vmap(one)(jnp.ravel(m)).reshape(m.shape)
+        return fold_front_radius(self, m, c, lo, top,
+                                 lambda mm: parabola_stable_radius(mm, c_start, R),
+                                 steps=_FRONT_STEPS)
 
     def stationary_radius(self, q, lo, hi):
         # sqrt(x) g'(x) = q  <=>  psi(s) = q / sqrt(R) at s = x / R (`_psi`); psi >= 2 s^1.5,

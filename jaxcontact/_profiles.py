@@ -68,6 +68,7 @@ __all__ = [
     "GapCoordinate",
     "PositionCoordinate",
     "TouchCoordinate",
+    "fold_front_radius",
     "front_displacement",
     "parabola_stable_radius",
     "power_law_factor",
@@ -253,6 +254,19 @@ def _elementwise(fn, x):
     """`fn` (a scalar function) over every entry of `x` by `vmap`."""
     x = jnp.asarray(x)
     return jax.vmap(fn)(jnp.ravel(x)).reshape(x.shape)
+
+
+def fold_front_radius(profile, m, c, lo, hi, start, *, steps: int):
+    r"""The stable root of $h(a) = g(a) - c\sqrt a = m$ right of the fold `lo` [m], per
+    entry of `m` (any shape), by `fold_root` from `start(m)`: the `front_radius` of profiles
+    with a closed-form start at or right of the root (`start` takes one entry of `m`, not
+    differentiated; `steps` the profile's measured worst case)."""
+
+    def one(mm):
+        return fold_root(lambda a: front_displacement(profile, a, c) - mm,
+                         start(lax.stop_gradient(mm)), lo, hi, steps=steps)
+
+    return _elementwise(one, as_float(m))
 
 
 def numerical_contact_radius(profile, depth, lo=None, hi=None):
@@ -578,17 +592,13 @@ class PowerLaw(AbstractPowerLawProfile):
         # K a^n >= 2 c sqrt(a), h(a) = K a^n - c sqrt(a) >= K a^n / 2 >= m
         K, n = lax.stop_gradient(self.power_law())
         cs = lax.stop_gradient(as_float(c))
-        top = jnp.inf if hi is None else hi
 
-        def one(mm):
-            ms = lax.stop_gradient(mm)
-            start = jnp.maximum((2.0 * jnp.maximum(ms, 0.0) / K) ** (1.0 / n),
-                                (2.0 * cs / K) ** (1.0 / (n - 0.5)))
-            return fold_root(lambda a: front_displacement(self, a, c) - mm, start, lo, top,
-                             steps=_POWER_LAW_FRONT_STEPS)
+        def start(mm):
+            return jnp.maximum((2.0 * jnp.maximum(mm, 0.0) / K) ** (1.0 / n),
+                               (2.0 * cs / K) ** (1.0 / (n - 0.5)))
 
-        m = as_float(m)
-        return jax.vmap(one)(jnp.ravel(m)).reshape(m.shape)
+        return fold_front_radius(self, m, c, lo, jnp.inf if hi is None else hi, start,
+                                 steps=_POWER_LAW_FRONT_STEPS)
 
 
 class Parabola(AbstractPowerLawProfile):
